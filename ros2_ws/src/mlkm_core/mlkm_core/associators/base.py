@@ -1,0 +1,109 @@
+"""The one associator interface that MLKM and every baseline implement.
+
+An associator turns anonymous detections into labels: ``labels[i]`` is the track of
+detection ``i`` (an int >= 0) or ``UNASSIGNED`` (-1). Track numbers are arbitrary; the
+metrics map them to targets.
+
+Live use goes through a session: the association node feeds one completed road segment
+at a time (sensor indices ascending, segment after segment) and gets the labels of every
+detection fed so far. Batch and incremental must agree: ``associate`` over all detections
+equals feeding the segments one by one, and the tests check it for every method.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from mlkm_core.types import Detections, Layout, segments
+
+
+@dataclass(frozen=True)
+class AssociatorConfig:
+    """Settings shared by all associators; each one reads the fields it needs."""
+
+    segment_size: int = 5  # K, sensors per segment (MLKM layer 1 and the live buffering)
+    seed: int = 0  # random_state of K-means / K-means++ / the DNN
+
+
+class Session:
+    """Incremental association over consecutive segments of one episode.
+
+    The default implementation re-runs the batch ``associate`` on everything fed so far,
+    which is exact (batch == incremental) for any method. Methods that can do better (MLKM
+    solves layers 1 and 2 per segment and matches only the new one) override it.
+    """
+
+    def __init__(self, associator: Associator, layout: Layout, n_targets: int) -> None:
+        self._associator = associator
+        self._layout = layout
+        self._n_targets = n_targets
+        self._parts: list[Detections] = []
+
+    @property
+    def detections(self) -> Detections:
+        """Every detection fed so far, in the order fed; labels follow this order."""
+        return Detections.concatenate(self._parts)
+
+    def add_segment(self, detections: Detections) -> np.ndarray:
+        """Feed the detections of the next completed segment; return labels of all so far."""
+        self._parts.append(detections)
+        return self._associator.associate(self._layout, self.detections, self._n_targets)
+
+
+class Associator(ABC):
+    """Base class: a name, a config, a batch ``associate`` and an incremental ``session``."""
+
+    name: ClassVar[str]
+
+    def __init__(self, config: AssociatorConfig | None = None) -> None:
+        self.config = config or AssociatorConfig()
+
+    @abstractmethod
+    def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
+        """Return one label per detection: a track number >= 0 or UNASSIGNED (-1)."""
+
+    def session(self, layout: Layout, n_targets: int) -> Session:
+        return Session(self, layout, n_targets)
+
+    def associate_incrementally(
+        self, layout: Layout, detections: Detections, n_targets: int
+    ) -> np.ndarray:
+        """Feed ``detections`` segment by segment through a session; labels in input order."""
+        session = self.session(layout, n_targets)
+        order = []
+        labels = np.zeros(0, dtype=np.int64)
+        for seg in segments(layout.n_sensors, self.config.segment_size):
+            idx = np.flatnonzero(np.isin(detections.sensor_index, seg))
+            order.append(idx)
+            labels = session.add_segment(detections.subset(idx))
+        out = np.full(len(detections), -1, dtype=np.int64)
+        out[np.concatenate(order)] = labels
+        return out
+
+
+_REGISTRY: dict[str, type[Associator]] = {}
+
+
+def register(cls: type[Associator]) -> type[Associator]:
+    """Class decorator: make an associator selectable by its ``name`` everywhere."""
+    if cls.name in _REGISTRY:
+        raise ValueError(f'associator {cls.name!r} registered twice')
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+def available_methods() -> list[str]:
+    from mlkm_core import associators  # noqa: F401  (registers the built-in methods)
+
+    return sorted(_REGISTRY)
+
+
+def make_associator(name: str, config: AssociatorConfig | None = None) -> Associator:
+    methods = available_methods()
+    if name not in _REGISTRY:
+        raise ValueError(f'unknown method {name!r}; choose one of {", ".join(methods)}')
+    return _REGISTRY[name](config)
