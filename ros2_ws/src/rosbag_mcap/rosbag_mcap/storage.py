@@ -1,0 +1,660 @@
+"""Bags in rosbag2's MCAP layout, without ROS: writer, reader, metadata and QoS text.
+
+A bag is a directory holding ``metadata.yaml`` (``rosbag2_bagfile_information`` version 9, as
+rosbag2 Jazzy writes it) and ``<dirname>_0.mcap``. The MCAP file uses profile ``ros2``:
+schemas ``ros2msg`` with the full definition text (see :mod:`rosbag_mcap.definitions`),
+channels with message encoding ``cdr`` and metadata ``offered_qos_profiles`` (rosbag2's QoS
+YAML) and ``topic_type_hash`` (``RIHS01_...``); payloads are the CDR bytes as received;
+``log_time`` is the receive time [ns], ``publish_time`` the sender's source timestamp [ns].
+Chunks are zstd-compressed (the mcap C++ writer's default, which rosbag2 uses) and indexed,
+with a summary section, plus the ``rosbag2`` metadata record that rosbag2 writes on close.
+
+The reader takes a bag directory (also one written by rosbag2) or a lone ``.mcap``. A file
+whose summary cannot be read (a truncated or unfinished recording) is scanned record by
+record; reading stops at the first damaged record and :attr:`BagReader.problems` says where.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+METADATA_FILE = 'metadata.yaml'
+METADATA_VERSION = 9
+ROS_DISTRO = 'jazzy'
+PROFILE = 'ros2'
+SCHEMA_ENCODING = 'ros2msg'
+MESSAGE_ENCODING = 'cdr'
+LIBRARY = 'rosbag_mcap/0.1.0 (python mcap writer)'
+DEFAULT_CHUNK_SIZE = 768 * 1024  # bytes, the mcap C++ writer's default (rosbag2's)
+
+INFINITE_NS = 9223372036854775807  # RMW_DURATION_INFINITE = {9223372036 s, 854775807 ns}
+_FOXY_INFINITES = {(0x7FFFFFFF, 0xFFFFFFFF), (0x7FFFFFFF, 0x7FFFFFFF)}
+
+# Enum values as rosbag2 wrote them up to metadata version 8 (rmw enum integers).
+_HISTORY = ('system_default', 'keep_last', 'keep_all', 'unknown')
+_RELIABILITY = ('system_default', 'reliable', 'best_effort', 'unknown', 'best_available')
+_DURABILITY = ('system_default', 'transient_local', 'volatile', 'unknown', 'best_available')
+_LIVELINESS = ('system_default', 'automatic', 'manual_by_node', 'manual_by_topic', 'unknown',
+               'best_available')
+
+
+class BagError(Exception):
+    """A bag cannot be opened or read; the message names the file and the reason."""
+
+
+# --------------------------------------------------------------------------- QoS text
+
+
+@dataclass(frozen=True)
+class QosSpec:
+    """One offered QoS profile, in rmw terms; durations in ns (INFINITE_NS = infinite)."""
+
+    history: str = 'keep_last'
+    depth: int = 10
+    reliability: str = 'reliable'
+    durability: str = 'volatile'
+    deadline: int = 0
+    lifespan: int = 0
+    liveliness: str = 'system_default'
+    liveliness_lease_duration: int = 0
+    avoid_ros_namespace_conventions: bool = False
+
+
+def _time_text(ns: int, indent: str) -> str:
+    return f'\n{indent}  sec: {ns // 1_000_000_000}\n{indent}  nsec: {ns % 1_000_000_000}'
+
+
+def qos_to_yaml(profiles: Sequence[QosSpec]) -> str:
+    """rosbag2 Jazzy's ``offered_qos_profiles`` string (yaml-cpp block style, v9 enum names)."""
+    if not profiles:
+        return '[]'
+    items = []
+    for p in profiles:
+        items.append(
+            f'- history: {p.history}\n'
+            f'  depth: {p.depth}\n'
+            f'  reliability: {p.reliability}\n'
+            f'  durability: {p.durability}\n'
+            f'  deadline:{_time_text(p.deadline, "  ")}\n'
+            f'  lifespan:{_time_text(p.lifespan, "  ")}\n'
+            f'  liveliness: {p.liveliness}\n'
+            f'  liveliness_lease_duration:{_time_text(p.liveliness_lease_duration, "  ")}\n'
+            f'  avoid_ros_namespace_conventions: {"true" if p.avoid_ros_namespace_conventions else "false"}'  # noqa: E501
+        )
+    return '\n'.join(items)
+
+
+def _enum(value: object, names: tuple[str, ...]) -> str:
+    if isinstance(value, bool):
+        raise ValueError(f'bad QoS policy value {value!r}')
+    if isinstance(value, int):
+        return names[value] if 0 <= value < len(names) else 'unknown'
+    text = str(value).lower()
+    return text if text in names else 'unknown'
+
+
+def _time_ns(value: object) -> int:
+    if not isinstance(value, dict):
+        raise ValueError(f'bad QoS duration {value!r}')
+    sec, nsec = int(value.get('sec', 0)), int(value.get('nsec', 0))
+    if (sec, nsec) in _FOXY_INFINITES:
+        return INFINITE_NS
+    return min(sec * 1_000_000_000 + nsec, INFINITE_NS)
+
+
+def parse_qos(text: str | list | None) -> list[QosSpec]:
+    """Parse ``offered_qos_profiles`` (v4-v8 integers, v9 names; string or list); ValueError."""
+    if text is None or text == '':
+        return []
+    data = yaml.safe_load(text) if isinstance(text, str) else text
+    if data is None:
+        return []
+    if not isinstance(data, list):
+        raise ValueError('offered_qos_profiles is not a list')
+    out = []
+    for item in data:
+        if not isinstance(item, dict):
+            raise ValueError('offered_qos_profiles entry is not a mapping')
+        out.append(QosSpec(
+            history=_enum(item.get('history', 'unknown'), _HISTORY),
+            depth=int(item.get('depth', 0)),
+            reliability=_enum(item.get('reliability', 'unknown'), _RELIABILITY),
+            durability=_enum(item.get('durability', 'unknown'), _DURABILITY),
+            deadline=_time_ns(item.get('deadline', {})),
+            lifespan=_time_ns(item.get('lifespan', {})),
+            liveliness=_enum(item.get('liveliness', 'unknown'), _LIVELINESS),
+            liveliness_lease_duration=_time_ns(item.get('liveliness_lease_duration', {})),
+            avoid_ros_namespace_conventions=bool(
+                item.get('avoid_ros_namespace_conventions', False)),
+        ))
+    return out
+
+
+def replay_qos(profiles: Sequence[QosSpec]) -> QosSpec:
+    """The profile to offer when replaying, from the recorded offers (rosbag2's rule).
+
+    Reliable only if every recorded publisher was reliable, transient_local only if every one
+    was (so latched topics stay latched). Volatile topics get history keep_all, so a fast
+    replay into a slow subscriber drops nothing; transient_local topics keep the last
+    ``depth`` messages (the recorded depth if known, else 1 per publisher, at least 1).
+    """
+    if not profiles:
+        return QosSpec()
+    reliable = all(p.reliability == 'reliable' for p in profiles)
+    latched = all(p.durability == 'transient_local' for p in profiles)
+    if latched:
+        known = [p.depth for p in profiles if p.history == 'keep_last' and p.depth > 0]
+        depth = max(sum(known), len(profiles)) if known else len(profiles)
+        history = 'keep_last'
+    else:
+        depth, history = 0, 'keep_all'
+    return QosSpec(
+        history=history, depth=depth,
+        reliability='reliable' if reliable else 'best_effort',
+        durability='transient_local' if latched else 'volatile',
+        deadline=0, lifespan=0, liveliness='system_default', liveliness_lease_duration=0)
+
+
+# --------------------------------------------------------------------------- metadata
+
+
+@dataclass
+class TopicInfo:
+    """One topic of a bag."""
+
+    name: str
+    type: str
+    offered_qos: list[QosSpec] = field(default_factory=list)
+    type_hash: str = ''
+    message_count: int = 0
+    serialization_format: str = MESSAGE_ENCODING
+
+
+def metadata_dict(*, files: Sequence[dict], topics: Sequence[TopicInfo],
+                  custom_data: dict[str, str] | None = None) -> dict:
+    """The ``rosbag2_bagfile_information`` mapping (rosbag2 field names and order)."""
+    starts = [f['starting_time']['nanoseconds_since_epoch'] for f in files if f['message_count']]
+    ends = [f['starting_time']['nanoseconds_since_epoch'] + f['duration']['nanoseconds']
+            for f in files if f['message_count']]
+    start = min(starts) if starts else 0
+    return {
+        'version': METADATA_VERSION,
+        'storage_identifier': 'mcap',
+        'duration': {'nanoseconds': (max(ends) - start) if ends else 0},
+        'starting_time': {'nanoseconds_since_epoch': start},
+        'message_count': sum(f['message_count'] for f in files),
+        'topics_with_message_count': [
+            {
+                'topic_metadata': {
+                    'name': t.name,
+                    'type': t.type,
+                    'serialization_format': t.serialization_format,
+                    'offered_qos_profiles': qos_to_yaml(t.offered_qos),
+                    'type_description_hash': t.type_hash,
+                },
+                'message_count': t.message_count,
+            }
+            for t in topics
+        ],
+        'compression_format': '',
+        'compression_mode': '',
+        'relative_file_paths': [f['path'] for f in files],
+        'files': list(files),
+        'custom_data': dict(custom_data) if custom_data else None,
+        'ros_distro': ROS_DISTRO,
+    }
+
+
+def dump_metadata(info: dict) -> str:
+    """YAML text of metadata.yaml for a ``rosbag2_bagfile_information`` mapping."""
+    return yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False,
+                          default_flow_style=False, allow_unicode=True, width=1000)
+
+
+def load_metadata(path: Path) -> dict:
+    """The ``rosbag2_bagfile_information`` mapping of a metadata.yaml; BagError if unusable."""
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+        info = data['rosbag2_bagfile_information']
+        version = int(info['version'])
+        if not isinstance(info['relative_file_paths'], list):
+            raise TypeError('relative_file_paths is not a list')
+    except OSError as exc:
+        raise BagError(f'{path}: cannot read bag metadata: {exc.strerror or exc}') from None
+    except yaml.YAMLError as exc:
+        raise BagError(f'{path}: bag metadata is not valid YAML: {exc}') from None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BagError(f'{path}: not rosbag2 bag metadata ({type(exc).__name__}: {exc})'
+                       ) from None
+    if version > 10:
+        raise BagError(f'{path}: bag metadata version {version} is newer than supported (10)')
+    return info
+
+
+# --------------------------------------------------------------------------- writer
+
+
+@dataclass
+class _WriterTopic:
+    info: TopicInfo
+    channel_id: int
+
+
+class BagWriter:
+    """Writes one bag directory. Not thread-safe: call from one thread (the node's executor).
+
+    ``close()`` finishes the MCAP (summary, indexes, footer) and writes metadata.yaml; it is
+    idempotent. ``flush()`` ends the current chunk so that a recording killed without a clean
+    close keeps everything written up to the last flush readable.
+    """
+
+    def __init__(self, directory: str | os.PathLike, *, compression: str = 'zstd',
+                 chunk_size: int = DEFAULT_CHUNK_SIZE,
+                 custom_data: dict[str, str] | None = None) -> None:
+        self.directory = Path(directory)
+        if self.directory.exists() and (not self.directory.is_dir()
+                                        or any(self.directory.iterdir())):
+            raise BagError(f'{self.directory}: output exists and is not an empty directory')
+        compressions = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
+                        'none': CompressionType.NONE, '': CompressionType.NONE}
+        if compression not in compressions:
+            raise BagError(f'unknown chunk compression {compression!r} (zstd, lz4, none)')
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.file_name = f'{self.directory.name}_0.mcap'
+        self.path = self.directory / self.file_name
+        self._custom_data = custom_data
+        self._stream = open(self.path, 'wb')  # noqa: SIM115 (closed in close())
+        self._mcap = Writer(self._stream, chunk_size=chunk_size,
+                            compression=compressions[compression])
+        self._mcap.start(profile=PROFILE, library=LIBRARY)
+        self._topics: dict[str, _WriterTopic] = {}
+        self._schemas: dict[str, int] = {}
+        self._first_ns: int | None = None
+        self._last_ns: int | None = None
+        self.message_count = 0
+        self.closed = False
+
+    @property
+    def topics(self) -> dict[str, TopicInfo]:
+        return {name: t.info for name, t in self._topics.items()}
+
+    def has_topic(self, name: str) -> bool:
+        return name in self._topics
+
+    def add_topic(self, name: str, type_name: str, definition: str,
+                  offered_qos: Sequence[QosSpec] = (), type_hash: str = '') -> None:
+        """Register a topic (one channel); its schema is shared by all topics of the type."""
+        if name in self._topics:
+            raise BagError(f'{self.path}: topic {name} added twice')
+        schema_id = self._schemas.get(type_name)
+        if schema_id is None:
+            schema_id = self._mcap.register_schema(
+                name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode('utf-8'))
+            self._schemas[type_name] = schema_id
+        info = TopicInfo(name=name, type=type_name, offered_qos=list(offered_qos),
+                         type_hash=type_hash)
+        channel_id = self._mcap.register_channel(
+            topic=name, message_encoding=MESSAGE_ENCODING, schema_id=schema_id,
+            metadata={'offered_qos_profiles': qos_to_yaml(info.offered_qos),
+                      'topic_type_hash': type_hash})
+        self._topics[name] = _WriterTopic(info, channel_id)
+
+    def write(self, topic: str, data: bytes, log_time: int, publish_time: int | None = None,
+              sequence: int = 0) -> None:
+        """Append one serialized message (``log_time``/``publish_time`` in ns)."""
+        entry = self._topics[topic]
+        self._mcap.add_message(channel_id=entry.channel_id, log_time=log_time, data=data,
+                               publish_time=log_time if publish_time is None else publish_time,
+                               sequence=sequence & 0xFFFFFFFF)
+        entry.info.message_count += 1
+        self.message_count += 1
+        if self._first_ns is None or log_time < self._first_ns:
+            self._first_ns = log_time
+        if self._last_ns is None or log_time > self._last_ns:
+            self._last_ns = log_time
+
+    def flush(self) -> None:
+        if not self.closed and hasattr(self._mcap, 'flush'):
+            self._mcap.flush()
+
+    def metadata(self) -> dict:
+        start = self._first_ns or 0
+        files = [{
+            'path': self.file_name,
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'duration': {'nanoseconds': (self._last_ns - start) if self._last_ns else 0},
+            'message_count': self.message_count,
+        }]
+        return metadata_dict(files=files, topics=[t.info for t in self._topics.values()],
+                             custom_data=self._custom_data)
+
+    def close(self) -> dict:
+        """Finish the MCAP and write metadata.yaml; returns the metadata mapping."""
+        info = self.metadata()
+        if self.closed:
+            return info
+        self.closed = True
+        try:
+            self._mcap.add_metadata('rosbag2', {'serialized_metadata': dump_metadata(info)})
+            self._mcap.finish()
+        finally:
+            self._stream.close()
+        tmp = self.directory / (METADATA_FILE + '.tmp')
+        tmp.write_text(dump_metadata(info), encoding='utf-8')
+        tmp.replace(self.directory / METADATA_FILE)
+        return info
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def default_bag_name(now: float | None = None) -> str:
+    """'rosbag2_YYYY_MM_DD-HH_MM_SS' (rosbag2's default bag directory name), local time."""
+    return time.strftime('rosbag2_%Y_%m_%d-%H_%M_%S', time.localtime(now))
+
+
+# --------------------------------------------------------------------------- reader
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """One recorded message."""
+
+    topic: str
+    type: str
+    data: bytes
+    log_time: int
+    publish_time: int
+    file: Path
+
+
+@dataclass
+class _FileIndex:
+    path: Path
+    indexed: bool  # the summary could be read: messages come in log-time order
+    topics: dict[str, TopicInfo]
+    start_time: int | None = None  # earliest log time [ns] of the readable messages
+    readable_count: int | None = None  # messages before the first damaged record (scanned)
+    problem: str | None = None
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc).strip()
+    name = {'EndOfFile': 'file ends in the middle of a record'}.get(type(exc).__name__)
+    if name:
+        return name
+    return f'{type(exc).__name__}: {text}' if text else type(exc).__name__
+
+
+def _topic_from_channel(channel: Channel, schema: Schema | None) -> TopicInfo:
+    try:
+        qos = parse_qos(channel.metadata.get('offered_qos_profiles', ''))
+    except (ValueError, yaml.YAMLError):
+        qos = []
+    return TopicInfo(name=channel.topic, type=schema.name if schema else '',
+                     offered_qos=qos, type_hash=channel.metadata.get('topic_type_hash', ''),
+                     serialization_format=channel.message_encoding)
+
+
+_READ_ERRORS = (McapError, ValueError, EOFError, OSError, KeyError, IndexError, MemoryError,
+                UnicodeDecodeError)
+
+
+class BagReader:
+    """Reads a bag directory (metadata.yaml + .mcap files) or a lone .mcap file.
+
+    Opening checks every file: a file with a readable summary is read through its index in
+    log-time order; one without (truncated, unfinished, damaged footer) is scanned once to
+    find how far it is readable. :attr:`problems` lists what was found, each naming the file.
+    Raises BagError when nothing of the bag can be read.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self.problems: list[str] = []
+        self.metadata: dict | None = None
+        files = self._resolve_files()
+        self._files = [self._index_file(f) for f in files]
+        self.topics: dict[str, TopicInfo] = {}
+        for index in self._files:
+            for name, info in index.topics.items():
+                if name not in self.topics:
+                    self.topics[name] = replace(info, message_count=0)
+                self.topics[name].message_count += info.message_count
+        self._merge_metadata_topics()
+        if not self.topics and self.problems:
+            raise BagError('; '.join(self.problems))
+
+    # -- opening
+
+    def _resolve_files(self) -> list[Path]:
+        path = self.path
+        if path.is_file():
+            if path.name == METADATA_FILE:
+                self.path = path = path.parent
+            else:
+                return [path]
+        if not path.exists():
+            raise BagError(f'{path}: no such bag directory or file')
+        if not path.is_dir():
+            raise BagError(f'{path}: not a bag directory or .mcap file')
+        meta_path = path / METADATA_FILE
+        if meta_path.is_file():
+            try:
+                self.metadata = load_metadata(meta_path)
+            except BagError as exc:
+                self.problems.append(f'{exc}; reading the .mcap files of the directory instead')
+        if self.metadata is not None:
+            storage = self.metadata.get('storage_identifier')
+            if storage != 'mcap':
+                raise BagError(f'{meta_path}: storage {storage!r} is not supported (mcap only)')
+            if (self.metadata.get('compression_mode') or '').lower() not in ('', 'none'):
+                raise BagError(
+                    f'{meta_path}: whole-file compression '
+                    f'({self.metadata.get("compression_format")}) is not supported; '
+                    'decompress the files first')
+            files = [path / Path(p).name for p in self.metadata['relative_file_paths']]
+            missing = [str(f) for f in files if not f.is_file()]
+            if missing:
+                raise BagError(f'{meta_path}: bag file(s) missing: {", ".join(missing)}')
+            return files
+        files = sorted(path.glob('*.mcap'))
+        if not files:
+            raise BagError(f'{path}: no {METADATA_FILE} and no .mcap file in the directory')
+        if not meta_path.is_file():
+            self.problems.append(f'{meta_path}: missing (unfinished recording?); '
+                                 f'reading {", ".join(f.name for f in files)} directly')
+        return files
+
+    def _index_file(self, path: Path) -> _FileIndex:
+        try:
+            with open(path, 'rb') as stream:
+                reader = SeekingReader(stream, validate_crcs=True)
+                header = reader.get_header()
+                summary = reader.get_summary()
+            if summary is None or summary.statistics is None:
+                raise McapError('no summary section')
+        except _READ_ERRORS as exc:
+            if isinstance(exc, OSError) and not isinstance(exc, EOFError):
+                if not path.is_file() or not os.access(path, os.R_OK):
+                    raise BagError(f'{path}: cannot read: {exc}') from None
+            return self._scan_file(path, f'summary unreadable ({_describe(exc)})')
+        if header.profile not in (PROFILE, ''):
+            self.problems.append(f'{path}: MCAP profile {header.profile!r}, expected ros2')
+        topics = {}
+        counts = summary.statistics.channel_message_counts
+        for channel in summary.channels.values():
+            info = _topic_from_channel(channel, summary.schemas.get(channel.schema_id))
+            info.message_count = counts.get(channel.id, 0)
+            topics[channel.topic] = info
+        start = summary.statistics.message_start_time if summary.statistics.message_count else None
+        return _FileIndex(path=path, indexed=True, topics=topics, start_time=start)
+
+    def _scan_file(self, path: Path, why: str) -> _FileIndex:
+        topics: dict[str, TopicInfo] = {}
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        count = 0
+        start = None
+        problem = None
+        try:
+            with open(path, 'rb') as stream:
+                for record in StreamReader(stream, validate_crcs=True).records:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        channels[record.id] = record
+                        if record.topic not in topics:
+                            topics[record.topic] = _topic_from_channel(
+                                record, schemas.get(record.schema_id))
+                    elif isinstance(record, Message):
+                        channel = channels.get(record.channel_id)
+                        if channel is None:
+                            raise McapError(f'message on unknown channel {record.channel_id}')
+                        topics[channel.topic].message_count += 1
+                        count += 1
+                        if start is None or record.log_time < start:
+                            start = record.log_time
+        except _READ_ERRORS as exc:
+            problem = (f'{path}: truncated or corrupt ({why}; scan stopped: {_describe(exc)}); '
+                       f'{count} messages are readable')
+        if problem is None:
+            problem = f'{path}: {why}; all {count} messages are readable by a full scan'
+        self.problems.append(problem)
+        if count == 0 and not topics:
+            raise BagError(f'{path}: nothing readable: {problem.split(": ", 1)[1]}')
+        return _FileIndex(path=path, indexed=False, topics=topics, start_time=start,
+                          readable_count=count, problem=problem)
+
+    def _merge_metadata_topics(self) -> None:
+        if self.metadata is None:
+            return
+        for entry in self.metadata.get('topics_with_message_count') or []:
+            try:
+                meta = entry['topic_metadata']
+                name, type_name = meta['name'], meta['type']
+            except (KeyError, TypeError):
+                continue
+            known = self.topics.get(name)
+            try:
+                qos = parse_qos(meta.get('offered_qos_profiles', ''))
+            except (ValueError, yaml.YAMLError):
+                qos = []
+            if known is None:
+                # Listed in metadata.yaml but no channel readable (lost in a damaged part).
+                self.topics[name] = TopicInfo(
+                    name=name, type=type_name, offered_qos=qos,
+                    type_hash=meta.get('type_description_hash', '') or '', message_count=0,
+                    serialization_format=meta.get('serialization_format', MESSAGE_ENCODING))
+            else:
+                if not known.offered_qos:
+                    known.offered_qos = qos
+                if not known.type:
+                    known.type = type_name
+
+    # -- queries
+
+    @property
+    def files(self) -> list[Path]:
+        return [f.path for f in self._files]
+
+    @property
+    def complete(self) -> bool:
+        """True when every file was read through its summary (nothing known to be missing)."""
+        return all(f.indexed for f in self._files)
+
+    @property
+    def expected_message_count(self) -> int | None:
+        """The message count metadata.yaml promises, if there is one."""
+        if self.metadata is None:
+            return None
+        try:
+            return int(self.metadata['message_count'])
+        except (KeyError, TypeError, ValueError):
+            return None
+
+    @property
+    def readable_message_count(self) -> int:
+        return sum(t.message_count for t in self.topics.values())
+
+    @property
+    def start_time(self) -> int | None:
+        """Earliest log time [ns] of the readable messages, None if there are none."""
+        starts = [f.start_time for f in self._files if f.start_time is not None]
+        return min(starts) if starts else None
+
+    def messages(self, topics: Iterable[str] | None = None,
+                 start_time: int | None = None) -> Iterator[BagMessage]:
+        """Readable messages, file by file (log-time order within an indexed file).
+
+        Damage found while reading (for instance a chunk whose CRC does not match) ends the
+        iteration early and is appended to :attr:`problems`.
+        """
+        wanted = None if topics is None else set(topics)
+        for index in self._files:
+            yield from self._file_messages(index, wanted, start_time)
+
+    def _file_messages(self, index: _FileIndex, wanted: set[str] | None,
+                       start_time: int | None) -> Iterator[BagMessage]:
+        path = index.path
+        emitted = 0
+        try:
+            with open(path, 'rb') as stream:
+                if index.indexed:
+                    reader = SeekingReader(stream, validate_crcs=True)
+                    iterator = reader.iter_messages(
+                        topics=None if wanted is None else sorted(wanted),
+                        starting_at=start_time, log_time_order=True)
+                    for schema, channel, message in iterator:
+                        emitted += 1
+                        yield BagMessage(channel.topic, schema.name if schema else '',
+                                         message.data, message.log_time,
+                                         message.publish_time, path)
+                    return
+                schemas: dict[int, Schema] = {}
+                channels: dict[int, Channel] = {}
+                readable = index.readable_count or 0
+                seen = 0
+                for record in StreamReader(stream, validate_crcs=True).records:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        channels[record.id] = record
+                    elif isinstance(record, Message):
+                        seen += 1
+                        if seen > readable:
+                            return
+                        channel = channels[record.channel_id]
+                        if wanted is not None and channel.topic not in wanted:
+                            continue
+                        if start_time is not None and record.log_time < start_time:
+                            continue
+                        schema = schemas.get(channel.schema_id)
+                        emitted += 1
+                        yield BagMessage(channel.topic, schema.name if schema else '',
+                                         record.data, record.log_time, record.publish_time,
+                                         path)
+        except _READ_ERRORS as exc:
+            if index.indexed:
+                self.problems.append(f'{path}: corrupt ({_describe(exc)}) after '
+                                     f'{emitted} messages; the rest of the file is skipped')
+            # A scanned file stops where the scan stopped: already reported.
+
+
+def is_hidden_topic(name: str) -> bool:
+    """True for topics with a token starting with '_' (rosbag2 skips them by default)."""
+    return any(token.startswith('_') for token in name.split('/') if token)
