@@ -1,0 +1,1 @@
+"""Live association graph: association_node, scorer_node (and the mlkm CLI entry point)."""

@@ -1,0 +1,165 @@
+"""Runs the core's associator on the segments the assembler hands over (ROS-free).
+
+One incremental core session per episode (``Associator.session``): each completed segment is
+fed with ``add_segment`` and the labels of everything fed so far come back. Track numbers
+are kept stable from one update to the next (the new labels are matched to the previous
+track ids by the largest overlap, Hungarian), so a downstream tracker sees the same id for
+the same target in the partial and the final output.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mlkm_assoc.assembly import Job, Part
+from mlkm_core.associators.base import Session, make_associator
+from mlkm_core.types import Detections, Layout
+from road_sensors.conversions import ns_to_seconds
+
+
+@dataclass(frozen=True)
+class Result:
+    """One association update: every detection of the episode fed so far, and its track."""
+
+    episode_id: int
+    method: str
+    final: bool
+    segments_done: int
+    segments_total: int
+    layout: Layout
+    sensor_index: np.ndarray
+    stamps_ns: np.ndarray
+    velocities: np.ndarray
+    labels: np.ndarray  # stable track id, or -1 (unassigned)
+    solve_time: float  # [s]
+    completed_at: float  # monotonic time the segment was complete
+    forced: bool
+    error: str | None = None
+
+
+class _EpisodeSolve:
+    def __init__(self) -> None:
+        self.session: Session | None = None
+        self.fed: list[Part] = []
+        self.ids = np.zeros(0, dtype=np.int64)  # stable ids, aligned with the fed order
+        self.segments_done = 0
+
+
+def _concat(parts: list[Part]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return (np.concatenate([p.sensor_index for p in parts]),
+            np.concatenate([p.stamps_ns for p in parts]),
+            np.concatenate([p.velocities for p in parts]))
+
+
+def to_detections(part: Part) -> Detections:
+    """The core's view of a segment: stamps in seconds (float64) from integer ns."""
+    return Detections(part.sensor_index, ns_to_seconds(part.stamps_ns), part.velocities)
+
+
+def stable_ids(previous: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Rename ``labels`` so that they agree with ``previous`` ids where possible.
+
+    ``previous`` holds the earlier ids of the first ``len(previous)`` detections (-1 =
+    unassigned). New labels are matched one-to-one to previous ids maximising shared
+    detections; unmatched labels get fresh ids. -1 stays -1.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    out = np.full(labels.shape, -1, dtype=np.int64)
+    new_vals = np.unique(labels[labels >= 0])
+    if new_vals.size == 0:
+        return out
+    mapping: dict[int, int] = {}
+    n_prev = previous.size
+    prev_vals = np.unique(previous[previous >= 0])
+    if n_prev and prev_vals.size:
+        head_new, head_prev = labels[:n_prev], previous
+        both = (head_new >= 0) & (head_prev >= 0)
+        if both.any():
+            rows = np.searchsorted(new_vals, head_new[both])
+            cols = np.searchsorted(prev_vals, head_prev[both])
+            table = np.zeros((new_vals.size, prev_vals.size), dtype=np.int64)
+            np.add.at(table, (rows, cols), 1)
+            r, c = linear_sum_assignment(table, maximize=True)
+            for i, j in zip(r, c):
+                if table[i, j] > 0:
+                    mapping[int(new_vals[i])] = int(prev_vals[j])
+    next_id = int(prev_vals.max()) + 1 if prev_vals.size else 0
+    used = set(mapping.values())
+    for v in new_vals.tolist():
+        if v not in mapping:
+            while next_id in used:
+                next_id += 1
+            mapping[v] = next_id
+            used.add(next_id)
+    lookup = np.array([mapping[v] for v in new_vals.tolist()], dtype=np.int64)
+    valid = labels >= 0
+    out[valid] = lookup[np.searchsorted(new_vals, labels[valid])]
+    return out
+
+
+class Solver:
+    """Turns jobs into results; keeps one core session per open episode."""
+
+    def __init__(self) -> None:
+        self._episodes: dict[int, _EpisodeSolve] = {}
+
+    def run(self, job: Job) -> Result:
+        t0 = time.perf_counter()
+        error = None
+        if job.kind == 'segment':
+            state = self._episodes.setdefault(job.episode_id, _EpisodeSolve())
+            labels, error = self._add(state, job, job.parts[0])
+            state.ids = stable_ids(state.ids, labels)
+        elif job.kind == 'final':
+            state = self._episodes.pop(job.episode_id, None) or _EpisodeSolve()
+        else:  # 'rerun': associate everything again, from scratch
+            old = self._episodes.pop(job.episode_id, None) or _EpisodeSolve()
+            si, ns, _ = _concat(old.fed)
+            previous = {(a, b): c for a, b, c in
+                        zip(si.tolist(), ns.tolist(), old.ids.tolist())}
+            state = _EpisodeSolve()
+            labels = None
+            for part in job.parts:
+                labels, error = self._add(state, job, part)
+                if error:
+                    break
+            if error or labels is None:
+                state.fed = list(job.parts)
+                labels = np.full(sum(p.stamps_ns.size for p in job.parts), -1, np.int64)
+            si, ns, _ = _concat(state.fed)
+            aligned = np.array([previous.get(k, -1) for k in zip(si.tolist(), ns.tolist())],
+                               dtype=np.int64)
+            state.ids = stable_ids(aligned, labels)
+            state.segments_done = len(job.parts)
+        solve_time = time.perf_counter() - t0
+        si, ns, vel = _concat(state.fed)
+        return Result(episode_id=job.episode_id, method=job.method,
+                      final=job.kind != 'segment', segments_done=state.segments_done,
+                      segments_total=job.segments_total, layout=job.layout, sensor_index=si,
+                      stamps_ns=ns, velocities=vel, labels=state.ids, solve_time=solve_time,
+                      completed_at=job.completed_at, forced=job.forced, error=error)
+
+    @staticmethod
+    def _add(state: _EpisodeSolve, job: Job, part: Part) -> tuple[np.ndarray, str | None]:
+        """Feed one segment to the episode's session; on failure every label is -1."""
+        state.fed.append(part)
+        state.segments_done += 1
+        n_total = sum(p.stamps_ns.size for p in state.fed)
+        try:
+            if state.session is None:
+                associator = make_associator(job.method, job.associator_config)
+                state.session = associator.session(job.layout, job.n_targets)
+            labels = np.asarray(state.session.add_segment(to_detections(part)), np.int64)
+            if labels.shape != (n_total,):
+                raise ValueError(f'{labels.size} labels for {n_total} detections')
+            return labels, None
+        except Exception as exc:  # noqa: BLE001 - reported; the node keeps running
+            return (np.full(n_total, -1, dtype=np.int64),
+                    f'{job.method} failed on episode {job.episode_id}, segment '
+                    f'{state.segments_done - 1}: {type(exc).__name__}: {exc}')

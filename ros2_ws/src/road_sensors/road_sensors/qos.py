@@ -1,0 +1,68 @@
+"""The graph's topic names and QoS profiles, defined once (see CONTRACT.md, Topics).
+
+Every node, script and test takes its profiles from here. Data topics are reliable with
+KEEP_ALL history on both ends: a reliable KEEP_LAST writer that outruns its reader drops
+samples silently, KEEP_ALL makes the writer hold each sample until every matched reader
+has acknowledged it, so nothing is lost. Latched topics (layout, episodes, scores) are
+transient_local so that late joiners (a replayed bag, a recorder, a scorer started later)
+still receive them.
+
+Names are relative, so ``-r`` remaps and ``__ns`` namespaces apply; in the root namespace
+they resolve to the contract's absolute names.
+"""
+
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+#: Topic names (relative; ``/road/...`` and ``/mlkm/...`` in the root namespace).
+LAYOUT_TOPIC = 'road/sensor_layout'
+EPISODE_TOPIC = 'road/episode'
+GROUND_TRUTH_TOPIC = 'road/ground_truth'
+DETECTIONS_PREFIX = 'road/sensors'
+TRACKS_TOPIC = 'mlkm/tracks'
+SCORE_TOPIC = 'mlkm/score'
+DIAGNOSTICS_TOPIC = '/diagnostics'
+CLOCK_TOPIC = '/clock'
+
+#: How many episodes (two EpisodeInfo messages each) and scores a late joiner still gets.
+LATCHED_HISTORY_DEPTH = 1000
+
+
+def detections_topic(sensor_name: str) -> str:
+    """The detection topic of one sensor: ``road/sensors/<sensor_name>/detections``."""
+    return f'{DETECTIONS_PREFIX}/{sensor_name}/detections'
+
+
+#: /road/sensor_layout: reliable, transient_local, depth 1.
+LAYOUT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: /road/episode: reliable, transient_local (the last LATCHED_HISTORY_DEPTH messages).
+EPISODE_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=LATCHED_HISTORY_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: Detections, ground truth and tracks: reliable, volatile, KEEP_ALL (nothing lost).
+STREAM_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+DETECTIONS_QOS = STREAM_QOS
+GROUND_TRUTH_QOS = STREAM_QOS
+TRACKS_QOS = STREAM_QOS
+
+#: /mlkm/score: reliable, transient_local (the last LATCHED_HISTORY_DEPTH episodes).
+SCORE_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=LATCHED_HISTORY_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: /diagnostics: reliable, volatile; periodic status, so a bounded history is enough.
+DIAGNOSTICS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=100,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+#: /clock: reliable writer, depth 1 (matches the usual best-effort clock readers too).
+CLOCK_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
