@@ -1,0 +1,238 @@
+"""Fixtures shared by every test tier (owned by the setup helper).
+
+The environment: tests need the one `source env.sh` gives (venv, ROS underlay, the
+``ros2_ws/install`` overlay). ``make test`` sources it; if pytest was started without it, this
+file re-executes pytest once under ``env.sh`` so that ``.venv/bin/pytest tests/...`` works too.
+
+Fixtures
+--------
+``repo_root``        -> Path of the repository.
+``ros_domain_id``    -> int in 1..100, unique per test among all concurrently running test
+                        sessions on this machine (an exclusive ``flock`` per id, released at
+                        teardown or when the process dies).
+``ros_env``          -> dict: a copy of ``os.environ`` with that ``ROS_DOMAIN_ID``,
+                        ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, unbuffered Python output;
+                        give it to any subprocess you start.
+``ros_process``      -> factory ``ros_process(package, executable, *args, env=None,
+                        **popen_kwargs) -> RosProcess``: starts
+                        ``ros2_ws/install/<package>/lib/<package>/<executable>`` in its own
+                        process group with ``ros_env`` (``env`` entries are added to it), output
+                        to a log file (``.output()``, ``.log_path``). Every process is stopped at
+                        teardown, even when the test fails: SIGINT to the group, then SIGTERM,
+                        then SIGKILL. ``.stop()`` does that earlier and returns the exit code.
+                        Log tails are printed at teardown (pytest shows them on failure).
+``rclpy_context``    -> a private, initialised ``rclpy.context.Context`` on ``ros_domain_id``
+                        (loopback only, no rclpy signal handlers), shut down at teardown. Pass
+                        it to ``Node(..., context=ctx)`` and ``SingleThreadedExecutor(
+                        context=ctx)``.
+``spin_until``       -> function ``spin_until(executor, predicate, timeout=10.0) -> bool``:
+                        spins ``executor`` in 50 ms steps until ``predicate()`` is true.
+
+Markers (pytest.ini): ``ros`` (starts DDS participants), ``slow``.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+INSTALL = REPO_ROOT / 'ros2_ws' / 'install'
+DOMAIN_IDS = range(1, 101)
+LOCK_DIR = Path(os.environ.get('MLKM_DOMAIN_LOCK_DIR', '/tmp/mlkm-ros-domain-locks'))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Restart this pytest under ``source env.sh`` when the environment is missing (once)."""
+    if (os.environ.get('MLKM_ROOT') or os.environ.get('MLKM_TEST_NO_REEXEC')
+            or os.environ.get('PYTEST_XDIST_WORKER')):
+        return
+    script = f'source {REPO_ROOT / "env.sh"} >/dev/null && env -0'
+    try:
+        out = subprocess.run(['bash', '-c', script], check=True, capture_output=True).stdout
+    except subprocess.CalledProcessError as exc:
+        sys.stderr.write(f'conftest: sourcing env.sh failed: {exc.stderr.decode()}\n'
+                         'run `make setup`, then `source env.sh`\n')
+        return
+    env = dict(item.split('=', 1) for item in out.decode().split('\0') if '=' in item)
+    env['MLKM_TEST_NO_REEXEC'] = '1'
+    venv_python = REPO_ROOT / '.venv' / 'bin' / 'python'
+    capture = config.pluginmanager.getplugin('capturemanager')
+    if capture is not None:  # give the real stdout/stderr back before exec
+        capture.stop_global_capturing()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(str(venv_python), [str(venv_python), *sys.orig_argv[1:]], env)
+
+
+@pytest.fixture(scope='session')
+def repo_root() -> Path:
+    return REPO_ROOT
+
+
+@pytest.fixture
+def ros_domain_id() -> Iterator[int]:
+    """A ROS_DOMAIN_ID that no other test, in this or another session, holds right now."""
+    LOCK_DIR.mkdir(parents=True, exist_ok=True)
+    ids = list(DOMAIN_IDS)
+    random.shuffle(ids)
+    for domain_id in ids:
+        fd = os.open(LOCK_DIR / f'{domain_id}.lock', os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        try:
+            yield domain_id
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+        return
+    pytest.fail(f'all ROS domain ids {DOMAIN_IDS.start}..{DOMAIN_IDS.stop - 1} are in use')
+
+
+@pytest.fixture
+def ros_env(ros_domain_id: int) -> dict[str, str]:
+    """Environment for subprocesses: own domain, loopback-only discovery, the overlay."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(ros_domain_id)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy; conflicts with the above
+    env.pop('ROS_STATIC_PEERS', None)
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+class RosProcess:
+    """One started executable: ``proc`` (Popen), ``log_path``, ``output()``, ``stop()``."""
+
+    def __init__(self, proc: subprocess.Popen, log_path: Path, name: str):
+        self.proc = proc
+        self.log_path = log_path
+        self.name = name
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def output(self) -> str:
+        """Everything the process wrote so far (stdout and stderr interleaved)."""
+        try:
+            return self.log_path.read_text(errors='replace')
+        except FileNotFoundError:
+            return ''
+
+    def wait_for_output(self, text: str, timeout: float = 10.0) -> bool:
+        """Wait until ``text`` appears in the output; False on timeout or early exit."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.output():
+                return True
+            if self.proc.poll() is not None:
+                return text in self.output()
+            time.sleep(0.05)
+        return False
+
+    def stop(self, timeout: float = 5.0) -> int:
+        """SIGINT the process group (as Ctrl-C would), then SIGTERM, then SIGKILL."""
+        for sig, grace in ((signal.SIGINT, timeout), (signal.SIGTERM, 3.0)):
+            if self.proc.poll() is not None:
+                break
+            _killpg(self.proc.pid, sig)
+            try:
+                self.proc.wait(grace)
+            except subprocess.TimeoutExpired:
+                pass
+        if self.proc.poll() is None:
+            _killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(5.0)
+        _killpg(self.proc.pid, signal.SIGKILL)  # anything left over in the group
+        return self.proc.returncode
+
+
+def _killpg(pgid: int, sig: int) -> None:
+    try:
+        os.killpg(pgid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def executable_path(package: str, executable: str) -> Path:
+    """``ros2_ws/install/<package>/lib/<package>/<executable>``, as ``ros2 run`` finds it."""
+    path = INSTALL / package / 'lib' / package / executable
+    if not os.access(path, os.X_OK):
+        have = sorted(p.name for p in path.parent.glob('*')) if path.parent.is_dir() else []
+        pytest.fail(f'no executable {executable!r} in package {package!r} ({path}); '
+                    f'installed: {have or "nothing (run make setup)"}')
+    return path
+
+
+@pytest.fixture
+def ros_process(ros_env: dict[str, str], tmp_path: Path) -> Iterator[Callable[..., RosProcess]]:
+    started: list[RosProcess] = []
+
+    def start(package: str, executable: str, *args: str, env: dict[str, str] | None = None,
+              **popen_kwargs) -> RosProcess:
+        path = executable_path(package, executable)
+        log_path = tmp_path / f'{executable}-{len(started)}.log'
+        log = open(log_path, 'wb')  # noqa: SIM115 - closed right after Popen has it
+        kwargs = dict(stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                      cwd=tmp_path)
+        kwargs.update(popen_kwargs)
+        try:
+            proc = subprocess.Popen([str(path), *map(str, args)], env={**ros_env, **(env or {})},
+                                    start_new_session=True, **kwargs)
+        finally:
+            log.close()
+        rp = RosProcess(proc, log_path, f'{package}/{executable}')
+        started.append(rp)
+        return rp
+
+    yield start
+    for rp in reversed(started):
+        code = rp.stop()
+        tail = '\n'.join(rp.output().splitlines()[-30:])
+        print(f'--- {rp.name} (pid {rp.pid}, exit {code}), end of {rp.log_path}:\n{tail}')
+
+
+@pytest.fixture
+def rclpy_context(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch):
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    # The RMW reads these when the context is initialised.
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(ros_domain_id))
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id,
+               signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        yield ctx
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def _spin_until(executor, predicate: Callable[[], bool], timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() >= deadline:
+            return False
+        executor.spin_once(timeout_sec=0.05)
+    return True
+
+
+@pytest.fixture
+def spin_until() -> Callable[..., bool]:
+    return _spin_until
