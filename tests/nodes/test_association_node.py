@@ -1,0 +1,243 @@
+"""In-process tests of the association node (private rclpy Context, a test publisher).
+
+A hand-made road with a known association: 4 sensors, 3 targets far apart in time, so the
+right answer is certain. Bad inputs are mixed into the stream; each one must be rejected or
+handled with its reason counted in /diagnostics, and every valid detection must end up in the
+final tracks or the unassigned arrays.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
+
+from mlkm_assoc.association_node import AssociationNode
+from mlkm_core.associators.base import available_methods
+from mlkm_core.types import Layout
+from road_sensors import conversions as conv
+from road_sensors import qos
+from road_sensors.params import ParameterError
+
+pytestmark = pytest.mark.ros
+
+IDS = [10, 11, 12, 13]
+NAMES = ['s_a', 's_b', 's_c', 's_d']
+POS = [100.0, 200.0, 300.0, 400.0]
+LAYOUT = Layout(500.0, np.array(POS), np.array(IDS), tuple(NAMES))
+#: target -> (entry time [s], speed [m/s]); passages 30-40 s apart: the answer is certain.
+TARGETS = {0: (0.0, 10.0), 1: (50.0, 20.0), 2: (100.0, 40.0)}
+
+
+def passages(offset: float = 0.0) -> list[tuple[int, int, float, int]]:
+    """(sensor index, stamp ns, velocity, target) of every true passage."""
+    out = []
+    for target, (t0, v) in TARGETS.items():
+        for s, p in enumerate(POS):
+            out.append((s, conv.seconds_to_ns(offset + t0 + p / v), v, target))
+    return out
+
+
+class Harness:
+    """A test node with publishers for layout, episodes and each sensor; collects outputs."""
+
+    def __init__(self, context, spin_until, **params) -> None:
+        overrides = [Parameter('diagnostics_period', value=0.2),
+                     Parameter('completion_timeout', value=1.0)]
+        overrides += [Parameter(k, value=v) for k, v in params.items()]
+        self.node = AssociationNode(context=context, parameter_overrides=overrides)
+        self.test = Node('association_test', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.test)
+        self.spin_until = spin_until
+        self.layout_pub = self.test.create_publisher(SensorLayout, qos.LAYOUT_TOPIC,
+                                                     qos.LAYOUT_QOS)
+        self.episode_pub = self.test.create_publisher(EpisodeInfo, qos.EPISODE_TOPIC,
+                                                      qos.EPISODE_QOS)
+        self.det_pubs = [self.test.create_publisher(Detection, qos.detections_topic(n),
+                                                    qos.DETECTIONS_QOS) for n in NAMES]
+        self.tracks: list[TrackArray] = []
+        self.diag: dict[str, str] = {}
+        self.test.create_subscription(TrackArray, qos.TRACKS_TOPIC, self.tracks.append,
+                                      qos.TRACKS_QOS)
+        self.test.create_subscription(DiagnosticArray, qos.DIAGNOSTICS_TOPIC, self._on_diag,
+                                      qos.DIAGNOSTICS_QOS)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        values = conv.diagnostics_values(msg, self.node.get_fully_qualified_name())
+        if values is not None:
+            self.diag = values
+
+    def wait(self, predicate, timeout: float = 10.0) -> None:
+        assert self.spin_until(self.executor, predicate, timeout), 'timed out'
+
+    def wait_matched(self) -> None:
+        self.wait(lambda: all(p.get_subscription_count() >= 1 for p in self.det_pubs))
+
+    def detect(self, s: int, stamp_ns: int, velocity: float, *, sensor_id: int | None = None,
+               position: float | None = None) -> None:
+        self.det_pubs[s].publish(conv.detection_to_msg(
+            IDS[s] if sensor_id is None else sensor_id, stamp_ns,
+            POS[s] if position is None else position, velocity))
+
+    def finals(self) -> dict[int, TrackArray]:
+        return {m.episode_id: m for m in self.tracks if m.final}
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.test.destroy_node()
+
+
+@pytest.fixture
+def harness(rclpy_context, spin_until):
+    made = []
+
+    def make(**params) -> Harness:
+        h = Harness(rclpy_context, spin_until, **params)
+        made.append(h)
+        return h
+
+    yield make
+    for h in made:
+        h.close()
+
+
+def keyed(msg: TrackArray) -> dict[tuple[int, int], int]:
+    ids, stamps, _, labels = conv.tracks_from_msg(msg)
+    return dict(zip(zip(ids.tolist(), stamps.tolist()), labels.tolist()))
+
+
+def window(offset: float) -> tuple[int, int]:
+    stamps = [p[1] for p in passages(offset)]
+    return min(stamps), max(stamps) + conv.seconds_to_ns(20.0)
+
+
+def test_known_association_with_every_bad_input(harness) -> None:
+    h = harness(method='mlkm', segment_size=2)
+    # Detection before the layout: the node finds the sensor topic in the graph, holds the
+    # detection, and checks it once the layout is known.
+    h.wait_matched()
+    valid = passages()
+    first = valid[0]
+    h.detect(first[0], first[1], first[2])
+    h.wait(lambda: h.node.assembler.handled['before_layout'] == 1)
+    h.layout_pub.publish(conv.layout_to_msg(LAYOUT, 0))
+    h.wait(lambda: h.node.assembler.layout is not None)
+    start, end = window(0.0)
+    h.episode_pub.publish(conv.episode_started_msg(0, 3, start, end, 0))
+    h.wait(lambda: 0 in h.node.assembler._infos)
+
+    # Sensor c (index 2) receives target 1 before target 0: a stamp out of order.
+    rest = valid[1:]
+    c_t0 = next(p for p in rest if p[0] == 2 and p[3] == 0)
+    c_t1 = next(p for p in rest if p[0] == 2 and p[3] == 1)
+    rest = [p for p in rest if p not in (c_t0, c_t1)]
+    h.detect(2, c_t1[1], c_t1[2])
+    h.detect(2, c_t0[1], c_t0[2])
+    for s, ns, v, _ in rest:
+        h.detect(s, ns, v)
+    s15 = conv.seconds_to_ns(15.0)
+    h.detect(0, s15, math.nan)
+    h.detect(0, s15 + 1, math.inf)
+    h.detect(0, s15 + 2, 0.0)
+    h.detect(0, s15 + 3, -12.0)
+    h.detect(0, s15 + 4, 12.0, position=150.0)  # not where sensor a stands
+    h.detect(0, s15 + 5, 12.0, sensor_id=99)  # unknown sensor id
+    dup = next(p for p in valid if p[0] == 1)
+    h.detect(1, dup[1], dup[2])  # duplicate (same sensor and stamp)
+    extra_ns = conv.seconds_to_ns(115.0)
+    h.detect(3, extra_ns, 25.0)  # a 4th detection at a sensor that saw 3 targets
+    h.detect(2, conv.seconds_to_ns(5.0), 20.0)  # before the episode's window
+    # ENDED counts every message each sensor published.
+    counts = {10: 3 + 5, 11: 3 + 1, 12: 3, 13: 3 + 1}
+    h.episode_pub.publish(conv.episode_ended_msg(0, 3, start, end, 0, counts))
+    h.wait(lambda: 0 in h.finals())
+    h.wait(lambda: h.diag.get('episodes_final') == '1')
+
+    d = h.diag
+    assert d['received'] == str(len(valid) + 9)
+    for reason in ('nan_velocity', 'inf_velocity', 'zero_velocity', 'negative_velocity',
+                   'position_mismatch', 'unknown_sensor', 'duplicate', 'outside_episode'):
+        assert d[f'rejected.{reason}'] == '1', reason
+    assert d['rejected'] == '8'
+    assert d['handled.before_layout'] == '1'
+    assert d['handled.out_of_order'] == '1'
+    assert d['handled.excess_at_sensor'] == '1'
+
+    # Every valid detection is in a track or unassigned, and the association is right.
+    got = keyed(h.finals()[0])
+    expected_keys = {(IDS[s], ns) for s, ns, _, _ in valid} | {(13, extra_ns)}
+    assert set(got) == expected_keys
+    track_of_target = {}
+    for s, ns, _, target in valid:
+        track_of_target.setdefault(target, set()).add(got[(IDS[s], ns)])
+    assert all(len(t) == 1 and -1 not in t for t in track_of_target.values())
+    assert len({next(iter(t)) for t in track_of_target.values()}) == 3
+    assert h.finals()[0].segments_done == h.finals()[0].segments_total == 2
+
+    # The node keeps working: a clean second episode is associated perfectly.
+    start1, end1 = window(1000.0)
+    h.episode_pub.publish(conv.episode_started_msg(1, 3, start1, end1, 0))
+    second = passages(1000.0)
+    for s, ns, v, _ in sorted(second, key=lambda p: p[1]):
+        h.detect(s, ns, v)
+    h.episode_pub.publish(conv.episode_ended_msg(1, 3, start1, end1, 0,
+                                                 {i: 3 for i in IDS}))
+    h.wait(lambda: 1 in h.finals())
+    got = keyed(h.finals()[1])
+    assert set(got) == {(IDS[s], ns) for s, ns, _, _ in second}
+    groups = {}
+    for s, ns, _, target in second:
+        groups.setdefault(target, set()).add(got[(IDS[s], ns)])
+    assert sorted(len(g) for g in groups.values()) == [1, 1, 1]
+
+
+def test_partial_tracks_segment_by_segment_with_stable_ids(harness) -> None:
+    h = harness(method='kmeans_pp', segment_size=2)
+    h.layout_pub.publish(conv.layout_to_msg(LAYOUT, 0))
+    h.wait(lambda: h.node.assembler.layout is not None)
+    h.wait_matched()
+    start, end = window(0.0)
+    h.episode_pub.publish(conv.episode_started_msg(0, 3, start, end, 0))
+    h.wait(lambda: 0 in h.node.assembler._infos)
+    for s, ns, v, _ in sorted(passages(), key=lambda p: p[1]):
+        h.detect(s, ns, v)
+    # Paper mode: each sensor's segment completes at num_targets detections, before ENDED.
+    h.wait(lambda: len(h.tracks) >= 2)
+    partial = [m for m in h.tracks if not m.final]
+    assert [m.segments_done for m in partial] == [1, 2]
+    assert sum(len(t.sensor_ids) for t in partial[0].tracks) == 6  # sensors a and b
+    h.episode_pub.publish(conv.episode_ended_msg(0, 3, start, end, 0, {i: 3 for i in IDS}))
+    h.wait(lambda: 0 in h.finals())
+    first, final = keyed(partial[0]), keyed(h.finals()[0])
+    assert all(final[k] == v for k, v in first.items())  # ids stable from partial to final
+
+
+def test_invalid_parameters_refused(rclpy_context) -> None:
+    with pytest.raises(ParameterError, match='unknown method .nope.; choose one of'):
+        AssociationNode(context=rclpy_context,
+                        parameter_overrides=[Parameter('method', value='nope')])
+    with pytest.raises(ParameterError, match='segment_size'):
+        AssociationNode(context=rclpy_context,
+                        parameter_overrides=[Parameter('segment_size', value=0)])
+    node = AssociationNode(context=rclpy_context)
+    try:
+        result = node.set_parameters([Parameter('method', value='nope')])[0]
+        assert not result.successful
+        assert 'choose one of' in result.reason and 'mlkm' in result.reason
+        assert node.get_parameter('method').value == 'mlkm'
+        for method in available_methods():  # every registered associator is accepted
+            assert node.set_parameters([Parameter('method', value=method)])[0].successful
+        assert node.config.method == available_methods()[-1]
+        assert not node.set_parameters(
+            [Parameter('completion_timeout', value=-1.0)])[0].successful
+    finally:
+        node.destroy_node()
