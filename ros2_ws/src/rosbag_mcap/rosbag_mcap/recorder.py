@@ -1,0 +1,250 @@
+"""bag_recorder: record topics into a bag in rosbag2's MCAP layout.
+
+    bag_recorder --ros-args -p output:=bags/run1 -p include_regex:='^/road/'
+
+Topics are discovered by polling the graph every ``discovery_period`` seconds, so topics that
+appear later are recorded too. Each topic is subscribed raw (the CDR bytes are written as
+received) with history keep_all, reliable / transient_local when every publisher offers it
+(latched messages published before the recorder started are captured).
+
+SIGINT and SIGTERM stop the recording cleanly: the messages already delivered are drained,
+the MCAP gets its summary and index, metadata.yaml is written and a per-topic count logged.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
+from rclpy.task import Future
+
+from rosbag_mcap.definitions import DefinitionCache, DefinitionNotFoundError
+from rosbag_mcap.ros_glue import (
+    EXIT_BAD_PARAMETER,
+    EXIT_OK,
+    EXIT_REFUSED,
+    ConfigError,
+    TopicSelection,
+    declare_bool,
+    declare_number,
+    declare_string,
+    declare_strings,
+    import_message_type,
+    request_profile,
+    spec_from_profile,
+)
+from rosbag_mcap.storage import BagError, BagWriter, default_bag_name
+
+
+class BagRecorder(Node):
+    """Subscribes to the selected topics and writes every message to one bag."""
+
+    def __init__(self) -> None:
+        super().__init__('bag_recorder')
+        output = declare_string(
+            self, 'output', '',
+            'Bag directory to create (must not exist or be empty); '
+            'empty: bags/rosbag2_<local time> under the working directory.')
+        topics = declare_strings(
+            self, 'topics', 'Topics to record; empty (and no include_regex): all topics.')
+        include = declare_string(
+            self, 'include_regex', '',
+            'Also record topics whose name matches this Python regex (re.search).')
+        exclude = declare_string(
+            self, 'exclude_regex', '',
+            'Never record topics whose name matches this Python regex (re.search).')
+        hidden = declare_bool(
+            self, 'include_hidden_topics', False,
+            "Record hidden topics (a name token starting with '_') when recording all.")
+        self._discovery_period = declare_number(
+            self, 'discovery_period', 0.5,
+            'Period of the graph poll that finds new topics [s].', 0.05, 60.0)
+        self._flush_period = declare_number(
+            self, 'flush_period', 1.0,
+            'Period of closing the current MCAP chunk, so that a recording killed without '
+            'a clean stop keeps what was flushed [s]; 0 = only at the end.', 0.0, 3600.0)
+        self._max_duration = declare_number(
+            self, 'max_duration', 0.0,
+            'Stop recording after this long [s]; 0 = until SIGINT or SIGTERM.', 0.0, 1e9)
+        compression = declare_string(
+            self, 'compression', 'zstd', 'MCAP chunk compression: zstd, lz4 or none.')
+        chunk_size = declare_number(
+            self, 'chunk_size', 768 * 1024, 'MCAP chunk size before compression [byte].',
+            1024, 1 << 30, integer=True)
+        try:
+            self._selection = TopicSelection(tuple(topics), include, exclude, hidden)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        if compression not in ('zstd', 'lz4', 'none'):
+            raise ConfigError(f'parameter compression={compression!r} refused: '
+                              'expected zstd, lz4 or none')
+        self._output = Path(output) if output else Path('bags') / default_bag_name()
+        self._writer = BagWriter(self._output, compression=compression, chunk_size=chunk_size)
+        self._use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._definitions = DefinitionCache()
+        self._recording: dict[str, Subscription] = {}
+        self._skipped: set[str] = set()
+        self._stop_signal: int | None = None
+        self.finished = Future()
+        self._started = time.monotonic()
+        self._discover()
+        self._discovery_timer = self.create_timer(self._discovery_period, self._discover)
+        # Signal handlers only set a flag; this timer turns it into the end of spinning.
+        self._stop_timer = self.create_timer(0.1, self._check_stop)
+        self._flush_timer = (self.create_timer(self._flush_period, self._writer.flush)
+                             if self._flush_period > 0 else None)
+        self.get_logger().info(
+            f'recording to {self._output.resolve()} ({self._describe_selection()})')
+
+    # -- discovery and recording
+
+    def _describe_selection(self) -> str:
+        s = self._selection
+        parts = []
+        if s.topics:
+            parts.append(f'topics {list(s.topics)}')
+        if s.include_regex:
+            parts.append(f'include {s.include_regex!r}')
+        if not parts:
+            parts.append('all topics')
+        if s.exclude_regex:
+            parts.append(f'exclude {s.exclude_regex!r}')
+        return ', '.join(parts)
+
+    def _skip(self, topic: str, reason: str) -> None:
+        if topic not in self._skipped:
+            self._skipped.add(topic)
+            self.get_logger().warning(f'not recording {topic}: {reason}')
+
+    def _discover(self) -> None:
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._recording or topic in self._skipped:
+                continue
+            if not self._selection.selects(topic):
+                continue
+            if len(types) != 1:
+                self._skip(topic, f'it has several types {types}')
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue  # only subscribers so far: wait for a publisher to learn its QoS
+            self._subscribe(topic, types[0], publishers)
+
+    def _subscribe(self, topic: str, type_name: str, publishers: list) -> None:
+        try:
+            msg_type = import_message_type(type_name)
+            definition = self._definitions.full_text(type_name)
+        except (ImportError, DefinitionNotFoundError, ValueError, OSError) as exc:
+            self._skip(topic, str(exc))
+            return
+        type_hash = next((str(p.topic_type_hash) for p in publishers
+                          if str(p.topic_type_hash).startswith('RIHS01_')), '')
+        offered = [spec_from_profile(p.qos_profile) for p in publishers]
+        self._writer.add_topic(topic, type_name, definition, offered, type_hash)
+        qos = request_profile(publishers)
+        self._recording[topic] = self.create_subscription(
+            msg_type, topic, self._make_callback(topic), qos, raw=True)
+        self.get_logger().info(
+            f'recording {topic} [{type_name}] {qos.reliability.name.lower()}, '
+            f'{qos.durability.name.lower()}')
+
+    def _make_callback(self, topic: str):
+        write = self._writer.write
+        clock = self.get_clock()
+        use_sim_time = self._use_sim_time
+
+        def on_message(data: bytes, info: dict) -> None:
+            received = clock.now().nanoseconds if use_sim_time else (
+                info.get('received_timestamp') or time.time_ns())
+            sent = info.get('source_timestamp') or received
+            write(topic, data, received, sent, info.get('publication_sequence_number') or 0)
+
+        return on_message
+
+    # -- stopping
+
+    def request_stop(self, signum: int, _frame: object = None) -> None:
+        """Signal handler: only records the request (it may run inside any callback)."""
+        self._stop_signal = signum
+
+    def _check_stop(self) -> None:
+        if self.finished.done():
+            return
+        if self._stop_signal is not None:
+            self.finished.set_result(signal.Signals(self._stop_signal).name)
+        elif self._max_duration > 0 and time.monotonic() - self._started >= self._max_duration:
+            self.finished.set_result('max_duration')
+
+    def drain(self, timeout: float = 2.0) -> None:
+        """Take the messages already delivered to the subscriptions (context still valid)."""
+        for timer in (self._discovery_timer, self._stop_timer, self._flush_timer):
+            if timer is not None:
+                timer.cancel()
+        if not rclpy.ok():
+            return
+        deadline = time.monotonic() + timeout
+        idle = 0
+        while idle < 3 and time.monotonic() < deadline:
+            before = self._writer.message_count
+            rclpy.spin_once(self, timeout_sec=0.02)
+            idle = idle + 1 if self._writer.message_count == before else 0
+
+    def close(self) -> None:
+        """Finish the bag and log where it is and how many messages each topic has."""
+        if self._writer.closed:
+            return
+        info = self._writer.close()
+        counts = {t.name: t.message_count for t in self._writer.topics.values()}
+        lines = [f'  {name}: {count}' for name, count in sorted(counts.items())]
+        self.get_logger().info(
+            f'bag written: {self._output.resolve()} ({info["message_count"]} messages, '
+            f'{len(counts)} topics)' + ('\n' + '\n'.join(lines) if lines else ''))
+
+
+def main(args: list[str] | None = None) -> int:
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    # Our own SIGINT/SIGTERM handlers: rclpy's would shut the context down at once, before
+    # the messages already delivered could be taken and the bag closed.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    status = EXIT_OK
+    try:
+        node = BagRecorder()
+    except (ConfigError, ParameterException) as exc:
+        print(f'bag_recorder: {exc}', file=sys.stderr)
+        status = EXIT_BAD_PARAMETER
+    except BagError as exc:
+        print(f'bag_recorder: cannot record: {exc}', file=sys.stderr)
+        status = EXIT_REFUSED
+    if node is None:
+        rclpy.try_shutdown()
+        return status
+    signal.signal(signal.SIGINT, node.request_stop)
+    signal.signal(signal.SIGTERM, node.request_stop)
+    try:
+        rclpy.spin_until_future_complete(node, node.finished)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        try:
+            node.drain()
+        finally:
+            node.close()
+            node.destroy_node()
+            rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())
