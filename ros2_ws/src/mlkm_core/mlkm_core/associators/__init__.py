@@ -1,5 +1,7 @@
 """Built-in associators. Importing this package registers every method by name."""
 
+import mlkm_core.associators.assignment  # noqa: F401  (BEYOND: issue 4)
+import mlkm_core.associators.multiframe  # noqa: F401  (BEYOND: issue 4)
 from mlkm_core.associators.base import (  # noqa: F401
     Associator,
     AssociatorConfig,
