@@ -1,0 +1,226 @@
+"""Helpers for the scripts that run the node graph (demo, replay, live benchmark).
+
+They start the installed executables as separate processes, exactly as a user would with
+``ros2 run`` in separate terminals, on loopback DDS and a ROS domain of their own, and stop
+every one of them (SIGINT, then SIGTERM, then SIGKILL) whatever happens.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import random
+import signal
+import subprocess
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+#: Shared with tests/conftest.py: a domain id held by a lock file is in use on this machine.
+LOCK_DIR = Path(os.environ.get('MLKM_DOMAIN_LOCK_DIR', '/tmp/mlkm-ros-domain-locks'))
+
+
+def executable(package: str, name: str) -> Path:
+    """``<prefix of package>/lib/<package>/<name>``, as ``ros2 run`` finds it."""
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+    try:
+        prefix = Path(get_package_prefix(package))
+    except PackageNotFoundError:
+        raise RuntimeError(f'package {package!r} not found; run `make setup` and '
+                           '`source env.sh`') from None
+    path = prefix / 'lib' / package / name
+    if not os.access(path, os.X_OK):
+        raise RuntimeError(f'no executable {name!r} in package {package!r} ({path})')
+    return path
+
+
+@contextmanager
+def domain() -> Iterator[int]:
+    """The user's ROS_DOMAIN_ID if set, else a free one (1..100) held for the duration."""
+    if os.environ.get('ROS_DOMAIN_ID'):
+        yield int(os.environ['ROS_DOMAIN_ID'])
+        return
+    LOCK_DIR.mkdir(parents=True, exist_ok=True)
+    ids = list(range(1, 101))
+    random.shuffle(ids)
+    for domain_id in ids:
+        fd = os.open(LOCK_DIR / f'{domain_id}.lock', os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        try:
+            yield domain_id
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+        return
+    raise RuntimeError('every ROS domain id 1..100 is in use on this machine')
+
+
+def graph_env(domain_id: int) -> dict[str, str]:
+    """os.environ with the domain, loopback-only discovery (unless set) and unbuffered I/O."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(domain_id)
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+class Proc:
+    """One started executable, in its own process group, output to a log file."""
+
+    def __init__(self, name: str, argv: list[str], env: dict[str, str], log_path: Path,
+                 echo: bool = False) -> None:
+        self.name = name
+        self.argv = argv
+        self.log_path = log_path
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(log_path, 'wb') as log:
+            self.proc = subprocess.Popen(argv, env=env, stdin=subprocess.DEVNULL, stdout=log,
+                                         stderr=subprocess.STDOUT, start_new_session=True)
+        if echo:
+            print(f'started {name} (pid {self.proc.pid}): {" ".join(argv)}', flush=True)
+
+    def poll(self) -> int | None:
+        return self.proc.poll()
+
+    def output(self) -> str:
+        try:
+            return self.log_path.read_text(errors='replace')
+        except FileNotFoundError:
+            return ''
+
+    def wait(self, timeout: float) -> int | None:
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def stop(self, grace: float = 10.0) -> int:
+        """SIGINT (as Ctrl-C), then SIGTERM, then SIGKILL, to the process group."""
+        for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 3.0)):
+            if self.proc.poll() is not None:
+                break
+            _killpg(self.proc.pid, sig)
+            try:
+                self.proc.wait(wait)
+            except subprocess.TimeoutExpired:
+                pass
+        if self.proc.poll() is None:
+            _killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(5.0)
+        return self.proc.returncode
+
+
+def _killpg(pgid: int, sig: int) -> None:
+    try:
+        os.killpg(pgid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+class Graph:
+    """Starts named processes and stops them all (reverse order) on exit."""
+
+    def __init__(self, domain_id: int, log_dir: Path, echo: bool = True) -> None:
+        self.env = graph_env(domain_id)
+        self.log_dir = log_dir
+        self.echo = echo
+        self.procs: dict[str, Proc] = {}
+
+    def start(self, name: str, package: str, exe: str, *args: str) -> Proc:
+        argv = [str(executable(package, exe)), *args]
+        proc = Proc(name, argv, self.env, self.log_dir / f'{name}.log', self.echo)
+        self.procs[name] = proc
+        return proc
+
+    def stop(self, name: str, grace: float = 10.0) -> int:
+        return self.procs[name].stop(grace)
+
+    def stop_all(self) -> dict[str, int]:
+        return {name: p.stop() for name, p in reversed(list(self.procs.items()))}
+
+    def failed(self, ignore: tuple[str, ...] = ()) -> str | None:
+        """Name and exit code of a process that exited nonzero, if any."""
+        for name, p in self.procs.items():
+            code = p.poll()
+            if name not in ignore and code not in (None, 0):
+                return f'{name} exited with code {code}; log {p.log_path}'
+        return None
+
+    def __enter__(self) -> Graph:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop_all()
+
+
+class ScoreCollector:
+    """An in-process subscriber to /mlkm/score (and optionally /diagnostics) on a private
+    context; ``wait_for(n)`` spins until n episodes were scored."""
+
+    def __init__(self, domain_id: int, diagnostics: bool = False) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.signals import SignalHandlerOptions
+        from road_sensor_msgs.msg import AssociationScore
+
+        from road_sensors import qos
+
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        self._rclpy = rclpy
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.node = Node('score_collector', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.scores: dict[int, AssociationScore] = {}
+        self.diagnostics: list[DiagnosticArray] = []
+        self.node.create_subscription(AssociationScore, qos.SCORE_TOPIC, self._on_score,
+                                      qos.SCORE_QOS)
+        if diagnostics:
+            self.node.create_subscription(DiagnosticArray, qos.DIAGNOSTICS_TOPIC,
+                                          self.diagnostics.append, qos.DIAGNOSTICS_QOS)
+
+    def _on_score(self, msg) -> None:
+        self.scores[msg.episode_id] = msg
+
+    def spin_until(self, predicate: Callable[[], bool], timeout: float,
+                   abort: Callable[[], str | None] = lambda: None) -> str | None:
+        """Spin until ``predicate()``; returns None, or why it stopped early."""
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            why = abort()
+            if why:
+                return why
+            if time.monotonic() > deadline:
+                return f'timed out after {timeout:g} s'
+            self.executor.spin_once(timeout_sec=0.05)
+        return None
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.try_shutdown(context=self.context)
+
+
+def format_scores(scores: dict, title: str) -> str:
+    """Per-episode accuracy and the mean, as printed by the demo and the replay."""
+    lines = [title, 'episode  method      accuracy  correct/total  link P / R        ARI']
+    for e in sorted(scores):
+        s = scores[e]
+        lines.append(f'{e:7d}  {s.method:10s}  {s.accuracy:8.4f}  {s.correct:6d}/{s.total:<6d}'
+                     f'  {s.link_precision:.4f}/{s.link_recall:.4f}  '
+                     f'{s.adjusted_rand_index:.4f}')
+    if scores:
+        mean = sum(s.accuracy for s in scores.values()) / len(scores)
+        lines.append(f'mean accuracy over {len(scores)} episode(s): {mean:.4f}')
+    return '\n'.join(lines)

@@ -1,0 +1,136 @@
+"""Multi-process tests: the real executables over loopback DDS, each test in its own domain.
+
+Every process is started through the ``ros_process`` fixture, which stops it at teardown
+even when the test fails.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from road_sensor_msgs.msg import AssociationScore, TrackArray
+
+from mlkm_core.associators.base import AssociatorConfig, make_associator
+from mlkm_core.metrics import accuracy
+from mlkm_core.simulator import SimConfig, simulate_episodes
+from mlkm_core.types import Detections
+from road_sensors import conversions as conv
+from road_sensors import qos
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+def offline_accuracies(config: SimConfig, seed: int, episodes: int, gap: float,
+                       method: str) -> list[float]:
+    """The offline core on the same datasets (stamps as the graph carries them: whole ns)."""
+    out = []
+    for ds in simulate_episodes(config, seed, episodes, gap):
+        d = ds.detections
+        same = Detections(d.sensor_index, conv.ns_to_seconds(conv.seconds_to_ns_array(d.stamp)),
+                          d.velocity, d.target)
+        labels = make_associator(method, AssociatorConfig()).associate(ds.layout, same,
+                                                                       ds.n_targets)
+        out.append(accuracy(labels, same.target).accuracy)
+    return out
+
+
+class Listener:
+    def __init__(self, context) -> None:
+        self.node = Node('graph_test_listener', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.scores: dict[int, AssociationScore] = {}
+        self.finals: dict[int, TrackArray] = {}
+        self.diag: dict[str, str] = {}
+        self.node.create_subscription(AssociationScore, qos.SCORE_TOPIC,
+                                      lambda m: self.scores.__setitem__(m.episode_id, m),
+                                      qos.SCORE_QOS)
+        self.node.create_subscription(TrackArray, qos.TRACKS_TOPIC, self._on_tracks,
+                                      qos.TRACKS_QOS)
+        self.node.create_subscription(DiagnosticArray, qos.DIAGNOSTICS_TOPIC, self._on_diag,
+                                      qos.DIAGNOSTICS_QOS)
+
+    def _on_tracks(self, msg: TrackArray) -> None:
+        if msg.final:
+            self.finals[msg.episode_id] = msg
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        values = conv.diagnostics_values(msg, '/association_node')
+        if values is not None:
+            self.diag = values
+
+    def tracks_matched(self, subscribers: int) -> bool:
+        return (self.node.count_publishers('/mlkm/tracks') >= 1
+                and self.node.count_subscribers('/mlkm/tracks') >= subscribers)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+@pytest.fixture
+def listener(rclpy_context):
+    lst = Listener(rclpy_context)
+    yield lst
+    lst.close()
+
+
+def test_live_accuracy_equals_offline(ros_process, listener, spin_until) -> None:
+    episodes, seed = 3, 7
+    assoc = ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=mlkm')
+    scorer = ros_process('mlkm_assoc', 'scorer_node')
+    assert spin_until(listener.executor, lambda: listener.tracks_matched(2), 30.0)
+    sim = ros_process('road_sensors', 'sensor_sim', '--ros-args', '-p', f'episodes:={episodes}',
+                      '-p', f'seed:={seed}', '-p', 'wait_for_subscribers:=1',
+                      '-p', 'wait_for_truth_subscribers:=1')
+    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), \
+        sim.output() + assoc.output() + scorer.output()
+    assert sim.proc.wait(30) == 0
+    live = [listener.scores[e].accuracy for e in range(episodes)]
+    assert live == offline_accuracies(SimConfig(), seed, episodes, 10.0, 'mlkm')
+    last = listener.scores[episodes - 1]
+    assert last.episodes_scored == episodes
+    assert last.mean_accuracy == pytest.approx(np.mean(live))
+    assert all(listener.scores[e].total == 1000 for e in range(episodes))
+    assert 'episode 0 [mlkm]: accuracy' in scorer.output()
+
+
+def test_nothing_lost_under_load(ros_process, listener, spin_until) -> None:
+    """rtf 0, 200 targets on 40 sensors: every published detection reaches the node."""
+    episodes = 2
+    ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=kmeans_pp',
+                '-p', 'diagnostics_period:=0.5')
+    assert spin_until(listener.executor, lambda: listener.tracks_matched(1), 30.0)
+    sim = ros_process('road_sensors', 'sensor_sim', '--ros-args', '-p', f'episodes:={episodes}',
+                      '-p', 'n_targets:=200', '-p', 'n_sensors:=40',
+                      '-p', 'real_time_factor:=0.0', '-p', 'wait_for_subscribers:=1')
+    assert spin_until(listener.executor, lambda: len(listener.finals) >= episodes, 120.0), \
+        sim.output()
+    assert sim.proc.wait(30) == 0
+    published = 200 * 40
+    assert f'published {published * episodes} detections' in sim.output()
+    for e in range(episodes):
+        final = listener.finals[e]
+        total = sum(len(t.sensor_ids) for t in final.tracks) + len(final.unassigned_sensor_ids)
+        assert total == published
+    assert spin_until(listener.executor,
+                      lambda: listener.diag.get('episodes_final') == str(episodes), 10.0)
+    assert listener.diag['received'] == str(published * episodes)
+    assert listener.diag['rejected'] == '0'
+
+
+@pytest.mark.parametrize('package,exe,param,reason', [
+    ('mlkm_assoc', 'association_node', 'method:=nope', 'choose one of'),
+    ('mlkm_assoc', 'association_node', 'segment_size:=0', 'out of range'),
+    ('road_sensors', 'sensor_sim', 'n_targets:=0', 'out of range'),
+    ('road_sensors', 'sensor_sim', 'miss_probability:=1.0', 'miss_probability must be in'),
+    ('mlkm_assoc', 'scorer_node', 'truth_timeout:=-1.0', 'out of range'),
+])
+def test_invalid_parameter_refused_on_command_line(ros_process, package, exe, param,
+                                                   reason) -> None:
+    proc = ros_process(package, exe, '--ros-args', '-p', param)
+    assert proc.proc.wait(30) == 2
+    assert reason in proc.output()
