@@ -134,9 +134,12 @@ def test_qos_yaml_round_trip_and_legacy_integers():
     assert (parsed.history, parsed.reliability, parsed.durability, parsed.liveliness) == (
         'unknown', 'reliable', 'transient_local', 'automatic')
     assert parsed.deadline == INFINITE_NS and parsed.lifespan == 0
-    replay = replay_qos([LATCHED, LATCHED])
-    assert (replay.durability, replay.reliability, replay.depth) == ('transient_local',
-                                                                     'reliable', 2)
+    replay = replay_qos([LATCHED, LATCHED], message_count=3)
+    assert (replay.durability, replay.reliability, replay.history, replay.depth) == (
+        'transient_local', 'reliable', 'keep_last', 3)
+    known = QosSpec(history='keep_last', depth=5, durability='transient_local')
+    assert replay_qos([known], message_count=2).depth == 5
+    assert replay_qos([LATCHED], message_count=10**6).depth == 1000
     mixed = replay_qos([LATCHED, VOLATILE])
     assert (mixed.durability, mixed.history) == ('volatile', 'keep_all')
 

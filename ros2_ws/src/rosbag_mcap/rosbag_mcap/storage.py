@@ -17,6 +17,7 @@ record; reading stops at the first damaged record and :attr:`BagReader.problems`
 from __future__ import annotations
 
 import os
+import struct
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -141,21 +142,25 @@ def parse_qos(text: str | list | None) -> list[QosSpec]:
     return out
 
 
-def replay_qos(profiles: Sequence[QosSpec]) -> QosSpec:
+def replay_qos(profiles: Sequence[QosSpec], message_count: int = 1,
+               max_latched_depth: int = 1000) -> QosSpec:
     """The profile to offer when replaying, from the recorded offers (rosbag2's rule).
 
     Reliable only if every recorded publisher was reliable, transient_local only if every one
     was (so latched topics stay latched). Volatile topics get history keep_all, so a fast
-    replay into a slow subscriber drops nothing; transient_local topics keep the last
-    ``depth`` messages (the recorded depth if known, else 1 per publisher, at least 1).
+    replay into a slow subscriber drops nothing. Transient_local topics keep the last
+    ``depth`` messages: the recorded depth when the recording knew it, raised to the topic's
+    message count in the bag (at most ``max_latched_depth``) so that a fast replay cannot
+    overwrite a latched message before it is delivered, and late subscribers get the
+    topic's whole history (remote endpoints report depth 0 / history unknown).
     """
     if not profiles:
         return QosSpec()
     reliable = all(p.reliability == 'reliable' for p in profiles)
     latched = all(p.durability == 'transient_local' for p in profiles)
     if latched:
-        known = [p.depth for p in profiles if p.history == 'keep_last' and p.depth > 0]
-        depth = max(sum(known), len(profiles)) if known else len(profiles)
+        known = sum(p.depth for p in profiles if p.history == 'keep_last' and p.depth > 0)
+        depth = max(known, min(message_count, max_latched_depth), 1)
         history = 'keep_last'
     else:
         depth, history = 0, 'keep_all'
@@ -394,9 +399,12 @@ class _FileIndex:
 
 def _describe(exc: BaseException) -> str:
     text = str(exc).strip()
-    name = {'EndOfFile': 'file ends in the middle of a record'}.get(type(exc).__name__)
-    if name:
-        return name
+    known = {'EndOfFile': 'the file ends in the middle of a record',
+             'InvalidMagic': 'not an MCAP file (bad magic bytes)'}.get(type(exc).__name__)
+    if known:
+        return known
+    if isinstance(exc, struct.error):
+        return f'the file ends in the middle of a record ({text})'
     return f'{type(exc).__name__}: {text}' if text else type(exc).__name__
 
 
@@ -410,8 +418,8 @@ def _topic_from_channel(channel: Channel, schema: Schema | None) -> TopicInfo:
                      serialization_format=channel.message_encoding)
 
 
-_READ_ERRORS = (McapError, ValueError, EOFError, OSError, KeyError, IndexError, MemoryError,
-                UnicodeDecodeError)
+# Damaged data can make the mcap library fail in many ways (struct.error, zstd errors, ...).
+_READ_ERRORS = (Exception,)
 
 
 class BagReader:
@@ -489,10 +497,11 @@ class BagReader:
             if summary is None or summary.statistics is None:
                 raise McapError('no summary section')
         except _READ_ERRORS as exc:
-            if isinstance(exc, OSError) and not isinstance(exc, EOFError):
-                if not path.is_file() or not os.access(path, os.R_OK):
-                    raise BagError(f'{path}: cannot read: {exc}') from None
-            return self._scan_file(path, f'summary unreadable ({_describe(exc)})')
+            if isinstance(exc, OSError):
+                raise BagError(f'{path}: cannot read: {exc.strerror or exc}') from None
+            if type(exc).__name__ == 'InvalidMagic':
+                raise BagError(f'{path}: {_describe(exc)}') from None
+            return self._scan_file(path, f'summary unreadable: {_describe(exc)}')
         if header.profile not in (PROFILE, ''):
             self.problems.append(f'{path}: MCAP profile {header.profile!r}, expected ros2')
         topics = {}
@@ -530,13 +539,13 @@ class BagReader:
                         if start is None or record.log_time < start:
                             start = record.log_time
         except _READ_ERRORS as exc:
-            problem = (f'{path}: truncated or corrupt ({why}; scan stopped: {_describe(exc)}); '
-                       f'{count} messages are readable')
+            problem = (f'{path}: truncated or corrupt ({why}; reading stopped: '
+                       f'{_describe(exc)}); {count} messages are readable')
         if problem is None:
             problem = f'{path}: {why}; all {count} messages are readable by a full scan'
-        self.problems.append(problem)
         if count == 0 and not topics:
-            raise BagError(f'{path}: nothing readable: {problem.split(": ", 1)[1]}')
+            raise BagError(f'{path}: nothing readable ({problem.split("(", 1)[1]}')
+        self.problems.append(problem)
         return _FileIndex(path=path, indexed=False, topics=topics, start_time=start,
                           readable_count=count, problem=problem)
 

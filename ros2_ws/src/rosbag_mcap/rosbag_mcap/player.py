@@ -1,0 +1,339 @@
+"""bag_player: replay a bag (directory or lone .mcap, ours or rosbag2's) onto its topics.
+
+    bag_player --ros-args -p bag:=bags/run1 -p rate:=2.0 -p wait_for_subscribers:=1
+
+Every topic is published with the QoS its recorded publishers offered (reliable and
+transient_local only when all of them offered it, so latched topics stay latched), as raw CDR
+bytes, in log-time order with the recorded spacing divided by ``rate``.
+
+Exit status: 0 the bag was played (or playback was interrupted by SIGINT/SIGTERM);
+1 the bag was refused (missing, not a bag, nothing readable, no playable topic);
+2 a parameter value was refused; 3 the bag is damaged (truncated or corrupt): the readable
+part was played and a warning names the file and the count played.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
+
+from rosbag_mcap.ros_glue import (
+    EXIT_BAD_PARAMETER,
+    EXIT_OK,
+    EXIT_PARTIAL,
+    EXIT_REFUSED,
+    ConfigError,
+    TopicSelection,
+    declare_bool,
+    declare_number,
+    declare_string,
+    declare_strings,
+    import_message_type,
+    profile_from_spec,
+)
+from rosbag_mcap.storage import BagError, BagReader, replay_qos
+
+ACK_TIMEOUT = 10.0  # [s] longest wait for subscribers to acknowledge before going on
+PUBLISH_RETRY_TIMEOUT = 30.0  # [s] keep retrying a publish that the middleware refuses
+
+
+class RefusedError(Exception):
+    """The bag cannot be played; the message says why."""
+
+
+@dataclass
+class _Output:
+    topic: str  # as recorded
+    name: str  # as published (after remapping)
+    publisher: Publisher
+    reliable: bool
+    latched: bool
+
+
+def parse_remaps(rules: tuple[str, ...]) -> dict[str, str]:
+    remaps = {}
+    for rule in rules:
+        source, sep, target = rule.partition(':=')
+        if not sep or not source or not target:
+            raise ConfigError(f"parameter remap entry {rule!r} refused: expected 'from:=to'")
+        remaps[source] = target
+    return remaps
+
+
+class BagPlayer(Node):
+    """Publishes the messages of one bag; playback runs in its own thread."""
+
+    def __init__(self) -> None:
+        super().__init__('bag_player')
+        bag = declare_string(self, 'bag', '', 'Bag directory or .mcap file to play (required).')
+        self._rate = declare_number(
+            self, 'rate', 1.0,
+            'Playback speed factor: 1.0 = recorded timing, 2.0 = twice as fast; 0 = as fast '
+            'as the middleware takes the messages (keep_all: blocks, never drops).',
+            0.0, 1000.0)
+        self._loop = declare_bool(self, 'loop', False, 'Play the bag again and again.')
+        self._start_offset = declare_number(
+            self, 'start_offset', 0.0, 'Skip this much of the bag from its start [s].',
+            0.0, 1e9)
+        topics = declare_strings(self, 'topics', 'Topics to play; empty: all (see regexes).')
+        include = declare_string(self, 'include_regex', '',
+                                 'Also play topics matching this Python regex (re.search).')
+        exclude = declare_string(self, 'exclude_regex', '',
+                                 'Never play topics matching this Python regex (re.search).')
+        remap = declare_strings(
+            self, 'remap', "Topic renames 'from:=to' applied to recorded names "
+            '(ROS remapping -r from:=to works as well).')
+        self._publish_clock = declare_bool(
+            self, 'publish_clock', False, 'Publish the bag time on /clock while playing.')
+        self._clock_rate = declare_number(
+            self, 'clock_rate', 40.0, 'How often /clock is published [Hz].', 0.1, 1000.0)
+        self._wait_for_subscribers = declare_number(
+            self, 'wait_for_subscribers', 0,
+            'Before playing, wait until every played volatile topic has at least this many '
+            'matched subscriptions (or wait_timeout passes) [-].', 0, 1000, integer=True)
+        self._wait_timeout = declare_number(
+            self, 'wait_timeout', 30.0,
+            'Longest wait for subscribers before playing anyway [s].', 0.0, 1e6)
+        self._linger = declare_number(
+            self, 'linger', 0.0,
+            'Stay up this long after the last message, so that late subscribers still get '
+            'the latched (transient_local) topics [s]; -1 = until interrupted.', -1.0, 1e9)
+        if not bag:
+            raise ConfigError('parameter bag refused: it is required '
+                              '(--ros-args -p bag:=<bag directory or .mcap file>)')
+        remaps = parse_remaps(remap)
+        try:
+            selection = TopicSelection(tuple(topics), include, exclude, include_hidden=True)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        try:
+            self._reader = BagReader(bag)
+        except BagError as exc:
+            raise RefusedError(str(exc)) from None
+        for problem in self._reader.problems:
+            self.get_logger().warning(problem)
+        self._outputs: dict[str, _Output] = {}
+        for info in self._reader.topics.values():
+            if not selection.selects(info.name):
+                continue
+            if info.message_count == 0:
+                continue
+            try:
+                msg_type = import_message_type(info.type)
+            except ImportError as exc:
+                self.get_logger().warning(f'not playing {info.name}: {exc}')
+                continue
+            spec = replay_qos(info.offered_qos, info.message_count)
+            qos = profile_from_spec(spec)
+            name = remaps.get(info.name, info.name)
+            publisher = self.create_publisher(msg_type, name, qos)
+            self._outputs[info.name] = _Output(
+                info.name, name, publisher, qos.reliability == ReliabilityPolicy.RELIABLE,
+                qos.durability == DurabilityPolicy.TRANSIENT_LOCAL)
+        if not self._outputs:
+            raise RefusedError(f'{self._reader.path}: no playable topic (bag topics: '
+                               f'{sorted(self._reader.topics) or "none"})')
+        self._clock_pub = None
+        if self._publish_clock:
+            from rosgraph_msgs.msg import Clock
+
+            self._clock_msg = Clock()
+            self._clock_pub = self.create_publisher(Clock, '/clock', QoSProfile(depth=1))
+            self.create_timer(1.0 / self._clock_rate, self._tick_clock)
+        self._bag_time: int | None = None  # bag time [ns] of the latest published message
+        self._time_map: tuple[float, int] | None = None  # (monotonic start, bag start ns)
+        self._stop = threading.Event()
+        self.played = 0
+        self.publish_failures = 0
+        self.exit_status = EXIT_OK
+        self.done = Future()
+        self._thread = threading.Thread(target=self._run, name='playback', daemon=True)
+
+    # -- playback thread
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+    def _run(self) -> None:
+        try:
+            self._play_all()
+        except Exception as exc:  # noqa: BLE001  (reported, never a traceback for users)
+            if rclpy.ok() and not self._stop.is_set():
+                self.get_logger().error(f'playback failed: {type(exc).__name__}: {exc}')
+                self.exit_status = EXIT_REFUSED
+        finally:
+            if not self.done.done():
+                self.done.set_result(self.exit_status)
+
+    def _play_all(self) -> None:
+        self._wait_for_matching()
+        start = self._reader.start_time
+        if start is None:
+            raise RefusedError(f'{self._reader.path}: no readable message')
+        first = start + int(self._start_offset * 1e9)
+        total = sum(self._reader.topics[t].message_count for t in self._outputs)
+        self.get_logger().info(
+            f'playing {self._reader.path} ({total} messages on {len(self._outputs)} topics, '
+            f'rate {self._rate:g}{", loop" if self._loop else ""})')
+        while not self._stop.is_set():
+            self._play_once(first)
+            if not self._loop or not rclpy.ok():
+                break
+        self._await_acks()
+        self._report()
+        self._linger_for_late_subscribers()
+
+    def _wait_for_matching(self) -> None:
+        wanted = self._wait_for_subscribers
+        if wanted <= 0:
+            return
+        deadline = time.monotonic() + self._wait_timeout
+        while not self._stop.is_set():
+            # Latched topics reach late subscribers anyway: only volatile ones are waited for.
+            missing = [o.name for o in self._outputs.values()
+                       if not o.latched and o.publisher.get_subscription_count() < wanted]
+            if not missing:
+                return
+            if time.monotonic() >= deadline:
+                self.get_logger().warning(
+                    f'playing although fewer than {wanted} subscribers matched after '
+                    f'{self._wait_timeout:g} s on: {", ".join(sorted(missing))}')
+                return
+            self._stop.wait(0.02)
+
+    def _play_once(self, first: int) -> None:
+        wall_start = time.monotonic()
+        self._time_map = (wall_start, first)
+        for message in self._reader.messages(topics=self._outputs, start_time=first):
+            if self._stop.is_set() or not rclpy.ok():
+                return
+            if self._rate > 0:
+                due = wall_start + (message.log_time - first) / 1e9 / self._rate
+                delay = due - time.monotonic()
+                if delay > 0 and self._stop.wait(delay):
+                    return
+            output = self._outputs[message.topic]
+            self._bag_time = message.log_time
+            self._publish(output, message.data)
+
+    def _publish(self, output: _Output, data: bytes) -> None:
+        payload = data if isinstance(data, bytes) else bytes(data)
+        deadline = time.monotonic() + PUBLISH_RETRY_TIMEOUT
+        while True:
+            try:
+                output.publisher.publish(payload)
+                self.played += 1
+                return
+            except Exception as exc:  # noqa: BLE001  (rclpy raises RCLError on a full queue)
+                if not rclpy.ok() or self._stop.is_set():
+                    return
+                if time.monotonic() >= deadline:
+                    self.publish_failures += 1
+                    self.get_logger().error(
+                        f'dropped a message on {output.name}: the middleware refused it for '
+                        f'{PUBLISH_RETRY_TIMEOUT:g} s ({exc})')
+                    return
+                # A keep_all writer whose subscribers do not keep up: let them catch up.
+                output.publisher.wait_for_all_acked(Duration(seconds=0.5))
+
+    def _await_acks(self) -> None:
+        """Wait until reliable subscribers acknowledged what was published (bounded)."""
+        for output in self._outputs.values():
+            if output.reliable and rclpy.ok() and not self._stop.is_set():
+                if not output.publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT)):
+                    self.get_logger().warning(
+                        f'{output.name}: not every subscriber acknowledged within '
+                        f'{ACK_TIMEOUT:g} s')
+
+    def _report(self) -> None:
+        reader = self._reader
+        if self.publish_failures:
+            self.exit_status = EXIT_PARTIAL
+        if reader.complete and not reader.problems:
+            self.get_logger().info(f'played {self.played} messages from {reader.path}')
+            return
+        expected = reader.expected_message_count
+        of = f' of {expected} recorded' if expected is not None else ''
+        files = ', '.join(str(f) for f in reader.files)
+        damaged = not reader.complete or any('corrupt' in p for p in reader.problems)
+        if damaged:
+            self.exit_status = EXIT_PARTIAL
+            self.get_logger().warning(
+                f'bag damaged: played the readable part, {self.played} messages{of}: '
+                f'{"; ".join(reader.problems)}')
+        else:
+            self.get_logger().info(f'played {self.played} messages{of} from {files}')
+
+    def _linger_for_late_subscribers(self) -> None:
+        if self._linger < 0:
+            self.get_logger().info('playback done; staying up until interrupted')
+            self._stop.wait()
+        elif self._linger > 0:
+            self._stop.wait(self._linger)
+
+    # -- clock (executor thread)
+
+    def _tick_clock(self) -> None:
+        if self._clock_pub is None or self._time_map is None:
+            return
+        if self._rate > 0:
+            wall_start, first = self._time_map
+            now = first + int((time.monotonic() - wall_start) * self._rate * 1e9)
+        else:
+            now = self._bag_time
+        if now is None:
+            return
+        self._clock_msg.clock.sec, self._clock_msg.clock.nanosec = divmod(now, 1_000_000_000)
+        self._clock_pub.publish(self._clock_msg)
+
+
+def main(args: list[str] | None = None) -> int:
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    rclpy.init(args=args)
+    node = None
+    status = EXIT_OK
+    try:
+        node = BagPlayer()
+    except (ConfigError, ParameterException) as exc:
+        print(f'bag_player: {exc}', file=sys.stderr)
+        status = EXIT_BAD_PARAMETER
+    except RefusedError as exc:
+        print(f'bag_player: refusing to play: {exc}', file=sys.stderr)
+        status = EXIT_REFUSED
+    except (KeyboardInterrupt, ExternalShutdownException):
+        status = EXIT_OK
+    if node is None:
+        rclpy.try_shutdown()
+        return status
+    node.start()
+    try:
+        rclpy.spin_until_future_complete(node, node.done)
+        status = node.exit_status
+    except (KeyboardInterrupt, ExternalShutdownException):
+        node.get_logger().info(f'interrupted after {node.played} messages')
+        status = EXIT_OK
+    finally:
+        node.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())
