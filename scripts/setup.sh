@@ -30,6 +30,14 @@ log() { printf 'setup: %s\n' "$*"; }
 die() { printf 'setup: ERROR: %s\n' "$*" >&2; exit 1; }
 hash_of() { sha256sum | cut -c1-64; }
 
+# One setup at a time per checkout (several terminals may run make targets at once).
+mkdir -p "$WS/log"
+exec 9>"$WS/log/.mlkm-setup.lock"
+if ! flock -n 9; then
+  log 'waiting for another make setup in this checkout to finish'
+  flock 9
+fi
+
 # --- 0. which ROS 2 ---------------------------------------------------------------------------
 UNDERLAY=${MLKM_ROS_UNDERLAY:-}
 if [[ $UNDERLAY == wheels ]]; then
@@ -146,10 +154,17 @@ fi
 python3-colcon-common-extensions)"
 # colcon run by the venv's Python, so that the packages' executables get it as interpreter.
 COLCON=("$VPY" -c 'import sys; from colcon_core.command import main; sys.exit(main())')
+# What needs a rebuild: any file added or removed, or a changed non-Python file (msg, CMake,
+# package.xml, setup.cfg, config) or setup.py. Edits of Python modules need none: the build is
+# a --symlink-install (develop mode), so the overlay runs the sources.
+src_files() {  # files of ros2_ws/src, NUL-separated, sorted; extra find tests in "$@"
+  (cd "$WS/src" && find . \( -name __pycache__ -o -name '*.egg-info' -o -name .pytest_cache \) \
+    -prune -o -type f ! -name '*.pyc' "$@" -print0 | LC_ALL=C sort -z)
+}
 src_stamp=$( {
   echo "$pip_stamp"
-  cd "$WS/src" && find . \( -name __pycache__ -o -name '*.egg-info' -o -name .pytest_cache \) \
-    -prune -o -type f ! -name '*.pyc' -print0 | LC_ALL=C sort -z | xargs -0 -r sha256sum
+  src_files | tr '\0' '\n'
+  src_files \( ! -name '*.py' -o -name setup.py \) | (cd "$WS/src" && xargs -0 -r sha256sum)
 } | hash_of)
 BUILD_STAMP=$WS/install/.mlkm-build-stamp
 if [[ $FORCE != 1 && -f $BUILD_STAMP && $(<"$BUILD_STAMP") == "$src_stamp" ]]; then
