@@ -166,8 +166,11 @@ src_stamp=$( {
   src_files | tr '\0' '\n'
   src_files \( ! -name '*.py' -o -name setup.py \) | (cd "$WS/src" && xargs -0 -r sha256sum)
 } | hash_of)
+# The stamp also names colcon's log of our build: a colcon build run by hand since then (say,
+# without --symlink-install) may have changed the install, so rebuild after it.
 BUILD_STAMP=$WS/install/.mlkm-build-stamp
-if [[ $FORCE != 1 && -f $BUILD_STAMP && $(<"$BUILD_STAMP") == "$src_stamp" ]]; then
+last_build() { readlink "$WS/log/latest_build" 2>/dev/null || true; }
+if [[ $FORCE != 1 && -f $BUILD_STAMP && $(<"$BUILD_STAMP") == "$src_stamp $(last_build)" ]]; then
   log 'ros2_ws up to date'
   exit 0
 fi
@@ -189,5 +192,5 @@ if ((rc != 0)); then
   done
   die "colcon build failed (exit $rc); full logs in ros2_ws/log/latest_build/<package>/"
 fi
-echo "$src_stamp" >"$BUILD_STAMP"
+echo "$src_stamp $(last_build)" >"$BUILD_STAMP"
 log 'done'
