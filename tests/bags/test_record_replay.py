@@ -17,7 +17,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message
 from road_sensor_msgs.msg import Detection
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
@@ -83,7 +83,7 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
         for topic, (_, make) in TOPICS.items():
             msg = make(i)
             pubs[topic].publish(msg)
-            sent[topic].append(serialize_message(msg))
+            sent[topic].append(msg)
     for pub in pubs.values():
         assert pub.wait_for_all_acked()
     assert recorder.wait_for_output('recording /bagtest/latched', 5.0)
@@ -91,7 +91,13 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
     out = recorder.output()
     assert_clean_output(out)
     assert f'bag written: {bag}' in out and f'{LATCHED_TOPIC}: 1' in out
-    sent[LATCHED_TOPIC] = [serialize_message(LATCHED_MSG)]
+    sent[LATCHED_TOPIC] = [LATCHED_MSG]
+    types = {LATCHED_TOPIC: String, **{topic: t for topic, (t, _) in TOPICS.items()}}
+
+    def same_messages(raw_by_topic: dict) -> bool:
+        """The raw CDR payloads decode (with rclpy) to exactly the messages sent, in order."""
+        return {t: [deserialize_message(r, types[t]) for r in raws]
+                for t, raws in raw_by_topic.items()} == sent
 
     # Independent decode 1: rosbags on the bag directory (checks type hashes too).
     with AnyReader([bag]) as reader:
@@ -100,7 +106,8 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
             by_topic.setdefault(connection.topic, []).append(
                 (bytes(raw), reader.deserialize(raw, connection.msgtype)))
         qos = {c.topic: c.ext.offered_qos_profiles[0] for c in reader.connections}
-    assert {t: [r for r, _ in v] for t, v in by_topic.items()} == sent
+    recorded = {t: [r for r, _ in v] for t, v in by_topic.items()}
+    assert same_messages(recorded)
     assert [m.data for _, m in by_topic['/bagtest/chatter']] == [f'hello {i}' for i in range(N)]
     assert [(m.header.stamp.sec, m.velocity) for _, m in by_topic['/bagtest/detections']] == [
         (1000 + i, 20.0 + 0.25 * i) for i in range(N)]
@@ -114,7 +121,7 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
         mcap = make_reader(stream, decoder_factories=[DecoderFactory()])
         for _, channel, message, ros_msg in mcap.iter_decoded_messages():
             decoded.setdefault(channel.topic, []).append((message.data, ros_msg))
-    assert {t: [r for r, _ in v] for t, v in decoded.items()} == sent
+    assert {t: [r for r, _ in v] for t, v in decoded.items()} == recorded
     assert [m.velocity for _, m in decoded['/bagtest/detections']] == [
         20.0 + 0.25 * i for i in range(N)]
     assert decoded['/bagtest/diagnostics'][-1][1].status[0].message == f'rejected {N - 1}'
@@ -130,11 +137,12 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
                          '-p', 'wait_for_subscribers:=1', '-p', 'linger:=20.0')
     assert spin_until(executor, lambda: all(len(v) >= N for v in received.values()), 30.0), \
         player.output()
-    assert received == {topic: sent[topic] for topic in TOPICS}
+    assert received == {topic: recorded[topic] for topic in TOPICS}  # byte for byte
     late = []
     node.create_subscription(String, LATCHED_TOPIC, late.append, LATCHED, raw=True)
     assert spin_until(executor, lambda: bool(late), 10.0), player.output()
-    assert late == sent[LATCHED_TOPIC]
+    assert late == recorded[LATCHED_TOPIC]
+    assert same_messages({**received, LATCHED_TOPIC: late})
     assert player.wait_for_output('played 121 messages', 5.0), player.output()
     assert player.stop() == 0  # SIGINT while lingering is a normal end
     assert_clean_output(player.output())
