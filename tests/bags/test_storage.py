@@ -285,3 +285,40 @@ def test_unreadable_inputs_raise_bag_error_naming_the_path(tmp_path, typestore):
         BagReader(bag)
     with pytest.raises(BagError, match='not an empty directory'):
         BagWriter(bag)
+
+
+def test_reader_reads_a_bag_written_by_another_implementation(tmp_path, typestore):
+    """A rosbag2 v9 MCAP bag written by rosbags' Writer (not ours) plays through BagReader."""
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    infinite = QosTime(9223372036, 854775807)
+    latched = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
+                  QosDurability.TRANSIENT_LOCAL, infinite, infinite, QosLiveliness.AUTOMATIC,
+                  infinite, False)
+    string_t = typestore.types['std_msgs/msg/String']
+    bag = tmp_path / 'foreign'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        chatter = writer.add_connection('/chatter', 'std_msgs/msg/String', typestore=typestore)
+        layout = writer.add_connection('/layout', 'std_msgs/msg/String', typestore=typestore,
+                                       offered_qos_profiles=[latched])
+        writer.write(layout, 5, bytes(typestore.serialize_cdr(string_t(data='road'),
+                                                              'std_msgs/msg/String')))
+        for i in range(3):
+            writer.write(chatter, 10 + i, bytes(typestore.serialize_cdr(
+                string_t(data=f'hi {i}'), 'std_msgs/msg/String')))
+    reader = BagReader(bag)
+    assert reader.complete and not reader.problems
+    assert reader.topics['/layout'].offered_qos[0].durability == 'transient_local'
+    assert replay_qos(reader.topics['/layout'].offered_qos, 1).durability == 'transient_local'
+    got = [(m.topic, m.log_time, typestore.deserialize_cdr(m.data, m.type).data)
+           for m in reader.messages()]
+    assert got == [('/layout', 5, 'road'), ('/chatter', 10, 'hi 0'), ('/chatter', 11, 'hi 1'),
+                   ('/chatter', 12, 'hi 2')]
