@@ -195,6 +195,8 @@ class BagPlayer(Node):
             self._play_once(first)
             if not self._loop or not rclpy.ok():
                 break
+        if self._stop.is_set() or not rclpy.ok():
+            return  # interrupted: main() reports
         self._await_acks()
         self._report()
         self._linger_for_late_subscribers()
@@ -326,7 +328,8 @@ def main(args: list[str] | None = None) -> int:
         rclpy.spin_until_future_complete(node, node.done)
         status = node.exit_status
     except (KeyboardInterrupt, ExternalShutdownException):
-        node.get_logger().info(f'interrupted after {node.played} messages')
+        # The context is already shut down: no ROS logging (it would fail on /rosout).
+        print(f'bag_player: interrupted after {node.played} messages', file=sys.stderr)
         status = EXIT_OK
     finally:
         node.stop()
