@@ -194,10 +194,13 @@ def test_sigterm_closes_the_recording_and_truncated_bag_plays_its_readable_part(
     assert [m.data[:11] for m in received] == [f'message {i:03d}' for i in range(readable)]
 
 
+def installed(repo_root: Path, executable: str) -> Path:
+    return repo_root / 'ros2_ws' / 'install' / 'rosbag_mcap' / 'lib' / 'rosbag_mcap' / executable
+
+
 def run_player(repo_root: Path, ros_env: dict, *args: str) -> subprocess.CompletedProcess:
-    exe = repo_root / 'ros2_ws' / 'install' / 'rosbag_mcap' / 'lib' / 'rosbag_mcap' / 'bag_player'
-    return subprocess.run([str(exe), '--ros-args', *args], env=ros_env, capture_output=True,
-                          text=True, timeout=30)
+    return subprocess.run([str(installed(repo_root, 'bag_player')), '--ros-args', *args],
+                          env=ros_env, capture_output=True, text=True, timeout=30)
 
 
 def test_player_refuses_bad_input_with_a_reason(repo_root, ros_env, tmp_path):
@@ -217,3 +220,27 @@ def test_player_refuses_bad_input_with_a_reason(repo_root, ros_env, tmp_path):
     assert result.returncode == 2 and 'parameter rate' in result.stderr
     assert 'refused' in result.stderr
     assert_clean_output(result.stdout + result.stderr)
+
+
+def test_recorder_refuses_bad_parameters_and_a_used_output(repo_root, ros_env, tmp_path):
+    exe = installed(repo_root, 'bag_recorder')
+    results = []
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        results.append(subprocess.run([str(exe), '--ros-args', *args], env=ros_env,
+                                      capture_output=True, text=True, timeout=30, cwd=tmp_path))
+        return results[-1]
+
+    result = run('-p', 'discovery_period:=0.0', '-p', f'output:={tmp_path / "a"}')
+    assert result.returncode == 2 and 'parameter discovery_period' in result.stderr
+    result = run('-p', 'include_regex:=(unclosed', '-p', f'output:={tmp_path / "b"}')
+    assert result.returncode == 2 and 'not a valid regular expression' in result.stderr
+    used = tmp_path / 'used'
+    used.mkdir()
+    (used / 'keep.txt').write_text('do not overwrite')
+    result = run('-p', f'output:={used}')
+    assert result.returncode == 1 and 'not an empty directory' in result.stderr
+    assert (used / 'keep.txt').read_text() == 'do not overwrite'
+    for r in results:
+        assert_clean_output(r.stdout + r.stderr)
+    assert not (tmp_path / 'a').exists() and not (tmp_path / 'b').exists()
