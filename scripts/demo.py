@@ -38,7 +38,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def recorder_args(bag_dir: Path) -> list[str]:
-    return ['--ros-args', '-p', f'output:={bag_dir}']
+    """Record every topic of the graph but the ROS housekeeping ones."""
+    return ['--ros-args', '-p', f'output:={bag_dir}',
+            '-p', 'exclude_regex:=^/(rosout|parameter_events)$']
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,9 +82,13 @@ def main(argv: list[str] | None = None) -> int:
                 raise RuntimeError(f'not every episode was scored: {why}')
             if graph.procs['sensor_sim'].wait(30.0) != 0:
                 raise RuntimeError(graph.failed() or 'sensor_sim did not finish')
-            # The recorder got the last score when the collector did (same topic); let it
-            # write, then stop it with SIGINT so that it closes the bag cleanly.
-            collector.spin_until(lambda: False, timeout=0.5)
+            # The recorder may still be working off its backlog (it takes the messages that
+            # DDS already acknowledged at its own pace): wait until it is idle, then stop it
+            # with SIGINT so that it closes the bag cleanly.
+            collector.spin_until(lambda: False, timeout=0.3)
+            if not graph.procs['bag_recorder'].wait_idle(timeout=60.0):
+                print('demo: the recorder stayed busy for 60 s; stopping it anyway',
+                      file=sys.stderr)
             code = graph.stop('bag_recorder', grace=20.0)
             if code != 0:
                 raise RuntimeError(f'bag_recorder exited with {code}; log '

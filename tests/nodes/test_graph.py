@@ -117,7 +117,7 @@ def test_nothing_lost_under_load(ros_process, listener, spin_until) -> None:
         total = sum(len(t.sensor_ids) for t in final.tracks) + len(final.unassigned_sensor_ids)
         assert total == published
     assert spin_until(listener.executor,
-                      lambda: listener.diag.get('episodes_final') == str(episodes), 10.0)
+                      lambda: listener.diag.get('episodes_published') == str(episodes), 10.0)
     assert listener.diag['received'] == str(published * episodes)
     assert listener.diag['rejected'] == '0'
 

@@ -9,7 +9,6 @@ updated tracks, so the executor thread only ever appends to lists (fast ingest).
 
 from __future__ import annotations
 
-import queue
 import re
 import statistics
 import sys
@@ -25,7 +24,7 @@ from rclpy.subscription import Subscription
 from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
 
 from mlkm_assoc.assembly import REJECT_REASONS, Assembler, AssociationConfig, Job
-from mlkm_assoc.solver import Result, Solver
+from mlkm_assoc.solver import SolverProcess, Update
 from mlkm_core.associators.base import available_methods
 from road_sensors import conversions as conv
 from road_sensors import qos
@@ -69,12 +68,13 @@ class AssociationNode(Node):
         self._diag_period: float = values.pop('diagnostics_period')
         self._config: AssociationConfig = AssociationConfig(**values)
         self._assembler: Assembler = Assembler(self._config, self._submit, self._on_reject)
-        self._jobs: queue.SimpleQueue[Job | None] = queue.SimpleQueue()
-        self._solver: Solver = Solver()
+        self._solver: SolverProcess = SolverProcess()
         self._solve_times: list[float] = []
-        self._latencies: list[float] = []
+        self._latencies: list[float] = []  # segment complete -> its tracks published [s]
+        self._overheads: list[float] = []  # the same, less the associator's solve time [s]
         self._solver_errors: int = 0
         self._tracks_published: int = 0
+        self._finals_published: int = 0
         self._diagnostics_due: bool = False
         self._det_subs: dict[str, Subscription] = {}
         self._prefix_re = re.compile(
@@ -89,7 +89,7 @@ class AssociationNode(Node):
             EpisodeInfo, qos.EPISODE_TOPIC, self._on_episode, qos.EPISODE_QOS)
         self._tick_timer = self.create_timer(0.25, self._on_tick)
         self._diag_timer = self.create_timer(self._diag_period, self.publish_diagnostics)
-        self._worker = threading.Thread(target=self._work, name='solver', daemon=True)
+        self._worker = threading.Thread(target=self._work, name='publisher', daemon=True)
         self._worker.start()
         self.get_logger().info(
             f'method {self._config.method}, segment_size {self._config.segment_size}; '
@@ -170,46 +170,38 @@ class AssociationNode(Node):
         self.get_logger().warn(f'detection rejected ({reason}): {detail}; rejected so far: '
                                f'{dict(self._assembler.rejected)}', throttle_duration_sec=2.0)
 
-    # --- solving (worker thread) ----------------------------------------------------------
+    # --- solving (solver process) and publishing (worker thread) ---------------------------
     def _submit(self, job: Job) -> None:
-        self._jobs.put(job)
+        self._solver.submit(job)
 
     def _work(self) -> None:
         while True:
-            job = self._jobs.get()
-            if job is None:
+            result = self._solver.get()
+            if result is None:
                 return
-            result = self._solver.run(job)
             try:
                 self._publish(result)
             except Exception as exc:  # noqa: BLE001 - shutting down, or a broken context
                 if rclpy.ok(context=self.context):
                     self.get_logger().error(f'publishing tracks failed: {exc}')
 
-    def _publish(self, result: Result) -> None:
-        layout = result.layout
-        msg = conv.tracks_to_msg(
-            episode_id=result.episode_id, method=result.method, final=result.final,
-            segments_done=result.segments_done, segments_total=result.segments_total,
-            sensor_ids=layout.sensor_ids[result.sensor_index],
-            stamps_ns=result.stamps_ns, velocities=result.velocities,
-            positions=layout.positions[result.sensor_index], labels=result.labels,
-            solve_time=result.solve_time, stamp_ns=self.get_clock().now().nanoseconds)
-        self._tracks_pub.publish(msg)
-        latency = time.monotonic() - result.completed_at
+    def _publish(self, update: Update) -> None:
+        self._tracks_pub.publish(update.data)
+        latency = time.monotonic() - update.completed_at
         self._tracks_published += 1
-        if result.error:
+        if update.error:
             self._solver_errors += 1
-            self.get_logger().error(result.error)
-        if not result.final:
-            self._solve_times.append(result.solve_time)
-            if not result.forced:
+            self.get_logger().error(update.error)
+        if not update.final:
+            self._solve_times.append(update.solve_time)
+            if not update.forced:
                 self._latencies.append(latency)
+                self._overheads.append(latency - update.solve_time)
         else:
-            n_un = int((result.labels < 0).sum())
+            self._finals_published += 1
             self.get_logger().info(
-                f'episode {result.episode_id}: final tracks, {result.labels.size} detections '
-                f'in {len(set(result.labels.tolist()) - {-1})} tracks, {n_un} unassigned')
+                f'episode {update.episode_id}: final tracks, {update.detections} detections '
+                f'in {update.tracks} tracks, {update.unassigned} unassigned')
             self._diagnostics_due = True  # published from the executor thread
 
     # --- diagnostics ----------------------------------------------------------------------
@@ -231,6 +223,7 @@ class AssociationNode(Node):
         values['segments_done'] = a.segments_done
         values['episodes_final'] = a.episodes_final
         values['track_updates_published'] = self._tracks_published
+        values['episodes_published'] = self._finals_published
         values['solver_errors'] = self._solver_errors
         solve, lat = list(self._solve_times), list(self._latencies)
         values['solve_time_last'] = f'{solve[-1]:.6f}' if solve else ''
@@ -239,6 +232,9 @@ class AssociationNode(Node):
         values['latency_p50'] = f'{_quantile(lat, 0.5):.6f}' if lat else ''
         values['latency_p95'] = f'{_quantile(lat, 0.95):.6f}' if lat else ''
         values['latency_count'] = len(lat)
+        over = list(self._overheads)
+        values['overhead_p50'] = f'{_quantile(over, 0.5):.6f}' if over else ''
+        values['overhead_p95'] = f'{_quantile(over, 0.95):.6f}' if over else ''
         values['first_receive'] = '' if a.first_rx is None else f'{a.first_rx:.6f}'
         values['last_receive'] = '' if a.last_rx is None else f'{a.last_rx:.6f}'
         if a.first_rx is not None and a.last_rx is not None and a.last_rx > a.first_rx:
@@ -259,7 +255,7 @@ class AssociationNode(Node):
             stamp_ns=self.get_clock().now().nanoseconds))
 
     def destroy_node(self) -> None:
-        self._jobs.put(None)
+        self._solver.close()
         if self._worker.is_alive():
             self._worker.join(timeout=10.0)
         super().destroy_node()

@@ -100,6 +100,29 @@ class Proc:
         except subprocess.TimeoutExpired:
             return None
 
+    def cpu_seconds(self) -> float:
+        """User + system CPU time the process used so far [s] (Linux /proc)."""
+        try:
+            fields = Path(f'/proc/{self.proc.pid}/stat').read_text().rsplit(')', 1)[1].split()
+        except (FileNotFoundError, IndexError):
+            return 0.0
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+    def wait_idle(self, timeout: float = 60.0, period: float = 0.25, quiet: int = 4,
+                  busy_fraction: float = 0.1) -> bool:
+        """Wait until the process is idle (CPU below ``busy_fraction`` for ``quiet``
+        periods in a row), e.g. a recorder that has worked off its backlog."""
+        deadline = time.monotonic() + timeout
+        last, calm = self.cpu_seconds(), 0
+        while time.monotonic() < deadline and self.proc.poll() is None:
+            time.sleep(period)
+            now = self.cpu_seconds()
+            calm = calm + 1 if now - last < busy_fraction * period else 0
+            last = now
+            if calm >= quiet:
+                return True
+        return False
+
     def stop(self, grace: float = 10.0) -> int:
         """SIGINT (as Ctrl-C), then SIGTERM, then SIGKILL, to the process group."""
         for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 3.0)):
@@ -135,6 +158,11 @@ class Graph:
     def start(self, name: str, package: str, exe: str, *args: str) -> Proc:
         argv = [str(executable(package, exe)), *args]
         proc = Proc(name, argv, self.env, self.log_dir / f'{name}.log', self.echo)
+        self.procs[name] = proc
+        return proc
+
+    def start_argv(self, name: str, *argv: str) -> Proc:
+        proc = Proc(name, list(argv), self.env, self.log_dir / f'{name}.log', self.echo)
         self.procs[name] = proc
         return proc
 

@@ -9,6 +9,8 @@ the same target in the partial and the final output.
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
 from dataclasses import dataclass
 
@@ -163,3 +165,96 @@ class Solver:
             return (np.full(n_total, -1, dtype=np.int64),
                     f'{job.method} failed on episode {job.episode_id}, segment '
                     f'{state.segments_done - 1}: {type(exc).__name__}: {exc}')
+
+
+@dataclass(frozen=True)
+class Update:
+    """A result ready to publish: the serialized TrackArray and what the node logs."""
+
+    data: bytes  # CDR of road_sensor_msgs/msg/TrackArray
+    episode_id: int
+    final: bool
+    detections: int
+    tracks: int
+    unassigned: int
+    solve_time: float  # [s]
+    completed_at: float  # monotonic time the segment was complete
+    forced: bool
+    error: str | None
+
+
+def encode(result: Result) -> Update:
+    """Build and serialize the TrackArray of ``result`` (in the solver process, so that the
+    node's process only hands bytes to the middleware)."""
+    from rclpy.serialization import serialize_message
+
+    from road_sensors.conversions import tracks_to_msg
+
+    layout = result.layout
+    msg = tracks_to_msg(
+        episode_id=result.episode_id, method=result.method, final=result.final,
+        segments_done=result.segments_done, segments_total=result.segments_total,
+        sensor_ids=layout.sensor_ids[result.sensor_index], stamps_ns=result.stamps_ns,
+        velocities=result.velocities, positions=layout.positions[result.sensor_index],
+        labels=result.labels, solve_time=result.solve_time, stamp_ns=time.time_ns())
+    labels = result.labels
+    return Update(data=serialize_message(msg), episode_id=result.episode_id,
+                  final=result.final, detections=int(labels.size),
+                  tracks=int(np.unique(labels[labels >= 0]).size),
+                  unassigned=int((labels < 0).sum()), solve_time=result.solve_time,
+                  completed_at=result.completed_at, forced=result.forced, error=result.error)
+
+
+class SolverProcess:
+    """The solver in a process of its own, so that solving never holds the GIL of the node's
+    executor thread (fast ingest) and runs on the other core. Jobs go in with ``submit``;
+    :class:`Update` s come out of ``get`` in the same order (None once closed)."""
+
+    def __init__(self) -> None:
+        ctx = multiprocessing.get_context('spawn')
+        self._jobs = ctx.Queue()
+        self._results = ctx.Queue()
+        self._proc = ctx.Process(target=_serve, args=(self._jobs, self._results, os.getpid()),
+                                 name='mlkm_solver', daemon=True)
+        self._proc.start()
+
+    def submit(self, job: Job | None) -> None:
+        self._jobs.put(job)
+
+    def get(self) -> Update | None:
+        return self._results.get()
+
+    def close(self, timeout: float = 5.0) -> None:
+        if self._proc.is_alive():
+            self._jobs.put(None)
+            self._proc.join(timeout)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(2.0)
+        self._results.put(None)  # wakes a reader blocked in get()
+
+
+def _serve(jobs, results, parent: int) -> None:
+    """Solver process main loop; exits on None or when the node's process is gone."""
+    import queue as _queue
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node stops us; Ctrl-C is for it
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)  # one core for the solver: the other one is the node's
+    except ImportError:
+        pass
+    solver = Solver()
+    while True:
+        try:
+            job = jobs.get(timeout=1.0)
+        except _queue.Empty:
+            if os.getppid() != parent:
+                return
+            continue
+        if job is None:
+            results.put(None)
+            return
+        results.put(encode(solver.run(job)))

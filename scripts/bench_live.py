@@ -1,0 +1,240 @@
+#!/usr/bin/env python3
+"""Live throughput benchmark (part of `make bench`): writes results/bench/live.json and .md.
+
+Two runs of the same stream, real executables over loopback DDS in a domain of their own:
+``sensor_sim`` at real_time_factor 0 with 200 targets on 40 sensors, into
+
+1. a bare rclpy subscriber on the 40 detection topics (a callback that only counts), and
+2. the ``association_node``.
+
+Ingest rate = (detections received - 1) / (last receive - first receive), wall clock, in the
+receiving process; the figure is the ratio association / bare. Latency = from the moment a
+segment is complete (the callback of its last detection) to the publication of its tracks,
+p50 and p95 over all segments, from the node's /diagnostics; ``overhead`` is the same less
+the associator's own solve time (what the node adds).
+
+    python scripts/bench_live.py [--out results/bench] [--episodes 3] [--method mlkm]
+
+``run(out_dir, episodes, method) -> dict`` is the entry point for bench.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGETS, SENSORS = 200, 40
+
+
+def sim_args(episodes: int, seed: int) -> list[str]:
+    return ['--ros-args', '-p', f'episodes:={episodes}', '-p', f'seed:={seed}',
+            '-p', f'n_targets:={TARGETS}', '-p', f'n_sensors:={SENSORS}',
+            '-p', 'real_time_factor:=0.0', '-p', 'wait_for_subscribers:=1']
+
+
+# --- the bare subscriber (a separate process: --bare) -----------------------------------------
+
+def bare_subscriber(expected: int) -> int:
+    """Subscribe to every detection topic of the layout; count; print JSON when done."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.node import Node
+    from road_sensor_msgs.msg import Detection, SensorLayout
+
+    from road_sensors import qos
+
+    class Bare(Node):
+        def __init__(self) -> None:
+            super().__init__('bare_subscriber')
+            self.count = 0
+            self.first = 0.0
+            self.last = 0.0
+            self.subs = []
+            self.create_subscription(SensorLayout, qos.LAYOUT_TOPIC, self.on_layout,
+                                     qos.LAYOUT_QOS)
+
+        def on_layout(self, msg: SensorLayout) -> None:
+            if not self.subs:
+                self.subs = [self.create_subscription(Detection, qos.detections_topic(n),
+                                                      self.on_detection, qos.DETECTIONS_QOS)
+                             for n in msg.sensor_names]
+
+        def on_detection(self, msg: Detection) -> None:
+            now = time.monotonic()
+            if self.count == 0:
+                self.first = now
+            self.last = now
+            self.count += 1
+            if self.count >= expected:
+                raise SystemExit(0)
+
+    rclpy.init()
+    node = Bare()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException, SystemExit):
+        pass
+    finally:
+        rate = (node.count - 1) / (node.last - node.first) if node.last > node.first else 0.0
+        print(json.dumps({'received': node.count, 'ingest_rate': rate}), flush=True)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+# --- the benchmark ------------------------------------------------------------------------------
+
+def _bare_run(domain_id: int, log_dir: Path, episodes: int, seed: int) -> dict:
+    from mlkm_assoc.graph import Graph
+
+    expected = TARGETS * SENSORS * episodes
+    with Graph(domain_id, log_dir / 'bare', echo=False) as graph:
+        bare = graph.start_argv('bare_subscriber', sys.executable, str(Path(__file__).resolve()),
+                                '--bare', str(expected))
+        sim = graph.start('sensor_sim', 'road_sensors', 'sensor_sim', *sim_args(episodes, seed))
+        if bare.wait(180.0) is None:
+            raise RuntimeError(f'bare subscriber did not finish; log {bare.log_path}')
+        sim.wait(30.0)
+        lines = [ln for ln in bare.output().splitlines() if ln.startswith('{')]
+        if not lines:
+            raise RuntimeError(f'bare subscriber printed no result; log {bare.log_path}')
+        return json.loads(lines[-1])
+
+
+def _association_run(domain_id: int, log_dir: Path, episodes: int, seed: int,
+                     method: str) -> dict:
+    from mlkm_assoc.graph import Graph, ScoreCollector
+    from road_sensors.conversions import diagnostics_values
+
+    collector = ScoreCollector(domain_id, diagnostics=True)
+    try:
+        with Graph(domain_id, log_dir / 'association', echo=False) as graph:
+            graph.start('association_node', 'mlkm_assoc', 'association_node', '--ros-args',
+                        '-p', f'method:={method}', '-p', 'diagnostics_period:=0.5')
+            node = collector.node
+            why = collector.spin_until(lambda: node.count_publishers('/mlkm/tracks') >= 1,
+                                       timeout=30.0, abort=graph.failed)
+            if why:
+                raise RuntimeError(f'association node did not come up: {why}')
+            graph.start('sensor_sim', 'road_sensors', 'sensor_sim', *sim_args(episodes, seed))
+            state: dict[str, str] = {}
+
+            def done() -> bool:
+                while collector.diagnostics:
+                    values = diagnostics_values(collector.diagnostics.pop(0),
+                                                '/association_node')
+                    if values is not None:
+                        state.clear()
+                        state.update(values)
+                return state.get('episodes_published') == str(episodes)
+
+            why = collector.spin_until(done, timeout=300.0, abort=graph.failed)
+            if why:
+                raise RuntimeError(f'association run incomplete: {why}')
+            return dict(state)
+    finally:
+        collector.close()
+
+
+def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
+        method: str = 'mlkm', seed: int = 0) -> dict:
+    """Run both measurements; write ``live.json`` and ``live.md`` in ``out_dir``."""
+    from mlkm_assoc.graph import domain
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log_dir = Path(tempfile.mkdtemp(prefix='mlkm_bench_live_'))
+    with domain() as domain_id:
+        bare = _bare_run(domain_id, log_dir, episodes, seed)
+        assoc = _association_run(domain_id, log_dir, episodes, seed, method)
+    expected = TARGETS * SENSORS * episodes
+    assoc_rate = float(assoc['ingest_rate'])
+    result = {
+        'scenario': {'targets': TARGETS, 'sensors': SENSORS, 'episodes': episodes,
+                     'detections': expected, 'real_time_factor': 0.0, 'seed': seed,
+                     'method': method, 'segment_size': int(assoc['segment_size'])},
+        'bare_subscriber': {'received': bare['received'],
+                            'ingest_rate': round(bare['ingest_rate'], 1)},
+        'association_node': {
+            'received': int(assoc['received']),
+            'rejected': int(assoc['rejected']),
+            'ingest_rate': round(assoc_rate, 1),
+            'segments': int(assoc['latency_count']),
+            'latency_p50': float(assoc['latency_p50']),
+            'latency_p95': float(assoc['latency_p95']),
+            'overhead_p50': float(assoc['overhead_p50']),
+            'overhead_p95': float(assoc['overhead_p95']),
+            'solve_time_mean': float(assoc['solve_time_mean']),
+            'solve_time_max': float(assoc['solve_time_max']),
+        },
+        'ingest_ratio': round(assoc_rate / bare['ingest_rate'], 3) if bare['ingest_rate'] else 0,
+        'nothing_lost': int(assoc['received']) == expected and bare['received'] == expected,
+        'targets': {'ingest_ratio_min': 0.7, 'latency_p95_max': 0.1},
+        'machine': {'python': platform.python_version(), 'cpus': _cpus()},
+        'date_utc': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
+    }
+    (out_dir / 'live.json').write_text(json.dumps(result, indent=2) + '\n')
+    (out_dir / 'live.md').write_text(_markdown(result))
+    return result
+
+
+def _cpus() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0))
+
+
+def _markdown(r: dict) -> str:
+    a, b, s = r['association_node'], r['bare_subscriber'], r['scenario']
+    ok_rate = 'met' if r['ingest_ratio'] >= 0.7 else 'NOT met'
+    ok_lat = 'met' if a['latency_p95'] <= 0.1 else 'NOT met'
+    return f"""# Live throughput (`scripts/bench_live.py`)
+
+Stream: `sensor_sim` at real_time_factor 0, {s['targets']} targets on {s['sensors']} sensors,
+{s['episodes']} episodes ({s['detections']} detections), seed {s['seed']}; association
+method `{s['method']}`, segment_size {s['segment_size']}. Real executables over loopback DDS,
+{r['machine']['cpus']} CPUs, {r['date_utc']}.
+
+| receiver | detections received | ingest rate [msg/s] |
+| --- | ---: | ---: |
+| bare rclpy subscriber (count only) | {b['received']} | {b['ingest_rate']:.0f} |
+| `association_node` | {a['received']} | {a['ingest_rate']:.0f} |
+
+Ingest ratio association / bare: **{r['ingest_ratio']:.2f}** (target >= 0.70: {ok_rate}).
+Nothing lost: {r['nothing_lost']}.
+
+Segment complete -> tracks published, over {a['segments']} segments:
+
+| | p50 [ms] | p95 [ms] |
+| --- | ---: | ---: |
+| latency | {a['latency_p50'] * 1e3:.1f} | {a['latency_p95'] * 1e3:.1f} |
+| node overhead (latency - solve) | {a['overhead_p50'] * 1e3:.1f} | {a['overhead_p95'] * 1e3:.1f} |
+
+Solve time per segment (the core associator): mean {a['solve_time_mean'] * 1e3:.1f} ms, max
+{a['solve_time_max'] * 1e3:.1f} ms. Target p95 latency <= 100 ms: {ok_lat}.
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ['--bare']:
+        return bare_subscriber(int(argv[1]))
+    p = argparse.ArgumentParser(description='Live throughput benchmark')
+    p.add_argument('--out', type=Path, default=ROOT / 'results' / 'bench')
+    p.add_argument('--episodes', type=int, default=3)
+    p.add_argument('--method', default='mlkm')
+    p.add_argument('--seed', type=int, default=0)
+    args = p.parse_args(argv)
+    result = run(args.out, args.episodes, args.method, args.seed)
+    print((args.out / 'live.md').read_text())
+    return 0 if result['nothing_lost'] else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

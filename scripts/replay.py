@@ -1,0 +1,143 @@
+#!/usr/bin/env python3
+"""`make replay BAG=<dir>`: replay a recorded bag into fresh association and scorer nodes.
+
+Plays the bag's layout, episode, sensor and ground-truth topics (never its recorded tracks,
+scores or diagnostics) with ``rosbag_mcap bag_player`` into a new ``association_node`` and
+``scorer_node``, each a separate process on loopback DDS in a ROS domain of its own (or
+$ROS_DOMAIN_ID), and prints the accuracy of each episode and the mean. When the bag also
+holds the scores of the run that recorded it, they are compared: a replay reproduces them.
+
+Usage: python scripts/replay.py <bag dir or .mcap> [--method M] [--rate R]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from mlkm_assoc.graph import Graph, ScoreCollector, domain, format_scores
+
+#: Topics replayed: the sensors' side of the graph only.
+PLAY_REGEX = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detections)$'
+
+
+def recorded_episodes(bag: Path) -> tuple[int, dict[int, float]]:
+    """(number of ENDED episodes, {episode: recorded accuracy}) read from the bag."""
+    from rclpy.serialization import deserialize_message
+    from road_sensor_msgs.msg import AssociationScore, EpisodeInfo
+
+    from rosbag_mcap.storage import BagReader
+
+    reader = BagReader(bag)
+    ended: set[int] = set()
+    recorded: dict[int, float] = {}
+    for message in reader.messages(topics=['/road/episode', '/mlkm/score']):
+        if message.topic == '/road/episode':
+            info = deserialize_message(message.data, EpisodeInfo)
+            if info.status == EpisodeInfo.STATUS_ENDED:
+                ended.add(info.episode_id)
+        elif message.topic == '/mlkm/score':
+            score = deserialize_message(message.data, AssociationScore)
+            recorded[score.episode_id] = score.accuracy
+    return len(ended), recorded
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    p.add_argument('bag', type=Path, help='bag directory (or a lone .mcap file)')
+    p.add_argument('--method', default=None,
+                   help='associator (default: the one that produced the recorded scores, '
+                        'else mlkm)')
+    p.add_argument('--rate', type=float, default=0.0,
+                   help='playback rate; 0 = as fast as the nodes take it (default)')
+    p.add_argument('--timeout', type=float, default=120.0, help='give up after [s] (120)')
+    args = p.parse_args(argv)
+    bag = args.bag.resolve()
+    if not bag.exists():
+        print(f'replay: {bag} does not exist', file=sys.stderr)
+        return 2
+    try:
+        episodes, recorded = recorded_episodes(bag)
+    except Exception as exc:  # noqa: BLE001 - any unreadable bag: say why and stop
+        print(f'replay: cannot read {bag}: {exc}', file=sys.stderr)
+        return 1
+    if episodes == 0:
+        print(f'replay: {bag} holds no complete episode (no ENDED on /road/episode)',
+              file=sys.stderr)
+        return 1
+    method = args.method or _recorded_method(bag) or 'mlkm'
+    log_dir = Path(tempfile.mkdtemp(prefix='mlkm_replay_'))
+    t0 = time.monotonic()
+    with domain() as domain_id:
+        print(f'replay: {bag} ({episodes} episodes), method {method}, '
+              f'ROS_DOMAIN_ID={domain_id}; logs in {log_dir}')
+        collector = ScoreCollector(domain_id)
+        graph = Graph(domain_id, log_dir)
+        try:
+            graph.start('association_node', 'mlkm_assoc', 'association_node',
+                        '--ros-args', '-p', f'method:={method}')
+            graph.start('scorer_node', 'mlkm_assoc', 'scorer_node')
+            node = collector.node
+            why = collector.spin_until(
+                lambda: (node.count_publishers('/mlkm/tracks') >= 1
+                         and node.count_subscribers('/mlkm/tracks') >= 1),
+                timeout=30.0, abort=graph.failed)
+            if why:
+                raise RuntimeError(f'nodes did not come up: {why}')
+            # The player waits until every volatile topic it plays has a subscriber: the
+            # association node subscribes to sensor topics as soon as they appear.
+            graph.start('bag_player', 'rosbag_mcap', 'bag_player', '--ros-args',
+                        '-p', f'bag:={bag}', '-p', f'rate:={args.rate}',
+                        '-p', f'include_regex:={PLAY_REGEX}',
+                        '-p', 'wait_for_subscribers:=1', '-p', 'linger:=-1.0')
+            why = collector.spin_until(lambda: len(collector.scores) >= episodes,
+                                       timeout=args.timeout,
+                                       abort=lambda: graph.failed(ignore=('bag_player',))
+                                       or _player_failed(graph))
+            if why:
+                raise RuntimeError(f'not every episode was scored: {why}')
+        except (RuntimeError, KeyboardInterrupt) as exc:
+            graph.stop_all()
+            collector.close()
+            print(f'replay: FAILED: {exc}', file=sys.stderr)
+            for proc in graph.procs.values():
+                tail = '\n    '.join(proc.output().splitlines()[-8:])
+                print(f'--- {proc.name} (exit {proc.poll()}):\n    {tail}', file=sys.stderr)
+            return 1
+        codes = graph.stop_all()
+        collector.close()
+    print(format_scores(collector.scores, f'\nreplayed association ({method}):'))
+    if recorded:
+        same = all(abs(collector.scores[e].accuracy - a) < 1e-12
+                   for e, a in recorded.items() if e in collector.scores)
+        print('recorded run: ' + ('same accuracy per episode' if same else
+                                  'DIFFERENT accuracy: ' + ', '.join(
+                                      f'{e}: {a:.4f}' for e, a in sorted(recorded.items()))))
+    print(f'replay: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
+    return 0
+
+
+def _player_failed(graph: Graph) -> str | None:
+    code = graph.procs['bag_player'].poll()
+    if code not in (None, 0):
+        return f'bag_player exited with code {code}; log {graph.procs["bag_player"].log_path}'
+    return None
+
+
+def _recorded_method(bag: Path) -> str | None:
+    from rclpy.serialization import deserialize_message
+    from road_sensor_msgs.msg import AssociationScore
+
+    from rosbag_mcap.storage import BagReader
+
+    for message in BagReader(bag).messages(topics=['/mlkm/score']):
+        if message.topic == '/mlkm/score':
+            return deserialize_message(message.data, AssociationScore).method
+    return None
+
+
+if __name__ == '__main__':
+    sys.exit(main())
