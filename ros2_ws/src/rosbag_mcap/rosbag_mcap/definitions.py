@@ -20,8 +20,9 @@ from pathlib import Path
 
 SEPARATOR = '=' * 80
 
-# Type names 'pkg/Type' or 'pkg/msg/Type' (as rosbag2_storage_mcap accepts them).
-_TYPENAME_RE = re.compile(r'^([a-zA-Z][a-zA-Z0-9_]*)/(?:(msg|srv)/)?([a-zA-Z][a-zA-Z0-9_]*)$')
+# Type names 'pkg/Type' or 'pkg/msg/Type' (also srv/ and action/ for service and action topics).
+_TYPENAME_RE = re.compile(
+    r'^([a-zA-Z][a-zA-Z0-9_]*)/(?:(msg|srv|action)/)?([a-zA-Z][a-zA-Z0-9_]*)$')
 # The field type at the start of a .msg line ('pkg/Type' in 'pkg/Type[] name').
 _FIELD_TYPE_RE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
 PRIMITIVE_TYPES = frozenset({

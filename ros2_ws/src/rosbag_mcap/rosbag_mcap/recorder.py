@@ -149,10 +149,15 @@ class BagRecorder(Node):
         type_hash = next((str(p.topic_type_hash) for p in publishers
                           if str(p.topic_type_hash).startswith('RIHS01_')), '')
         offered = [spec_from_profile(p.qos_profile) for p in publishers]
-        self._writer.add_topic(topic, type_name, definition, offered, type_hash)
         qos = request_profile(publishers)
-        self._recording[topic] = self.create_subscription(
-            msg_type, topic, self._make_callback(topic), qos, raw=True)
+        try:
+            subscription = self.create_subscription(
+                msg_type, topic, self._make_callback(topic), qos, raw=True)
+        except Exception as exc:  # noqa: BLE001  (rclpy raises several types; report, go on)
+            self._skip(topic, f'cannot subscribe: {exc}')
+            return
+        self._writer.add_topic(topic, type_name, definition, offered, type_hash)
+        self._recording[topic] = subscription
         self.get_logger().info(
             f'recording {topic} [{type_name}] {qos.reliability.name.lower()}, '
             f'{qos.durability.name.lower()}')
@@ -234,6 +239,9 @@ def main(args: list[str] | None = None) -> int:
         rclpy.spin_until_future_complete(node, node.finished)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except OSError as exc:  # e.g. the disk is full: say so, keep what can be kept
+        print(f'bag_recorder: recording failed: {exc}', file=sys.stderr)
+        status = EXIT_REFUSED
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
