@@ -193,7 +193,10 @@ def test_written_bag_decodes_with_mcap_ros2(tmp_path, typestore):
             assert channel.metadata['topic_type_hash'] == typestore.hash_rihs01(
                 summary.schemas[channel.schema_id].name)
             assert parse_qos(channel.metadata['offered_qos_profiles'])
-        assert [m.name for m in reader.iter_metadata()] == ['rosbag2']
+        (record,) = reader.iter_metadata()
+        assert record.name == 'rosbag2'
+        embedded = yaml.safe_load(record.metadata['serialized_metadata'])
+        assert embedded['version'] == 9 and embedded['message_count'] == len(expected)
     with open(mcap_file, 'rb') as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         decoded = [(c.topic, m.publish_time, msg)

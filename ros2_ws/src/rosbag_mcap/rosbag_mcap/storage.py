@@ -351,7 +351,10 @@ class BagWriter:
             return info
         self.closed = True
         try:
-            self._mcap.add_metadata('rosbag2', {'serialized_metadata': dump_metadata(info)})
+            # As rosbag2_storage_mcap: the BagMetadata mapping itself, without the root key.
+            serialized = yaml.safe_dump(info, sort_keys=False, default_flow_style=False,
+                                        allow_unicode=True, width=1000)
+            self._mcap.add_metadata('rosbag2', {'serialized_metadata': serialized})
             self._mcap.finish()
         finally:
             self._stream.close()
