@@ -149,7 +149,7 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
 
 
 def test_sigterm_closes_the_recording_and_truncated_bag_plays_its_readable_part(
-        ros_process, rclpy_context, spin_until, tmp_path):
+        ros_process, rclpy_context, spin_until, tmp_path, repo_root):
     node = Node('bagtest_source', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
@@ -182,9 +182,12 @@ def test_sigterm_closes_the_recording_and_truncated_bag_plays_its_readable_part(
     assert 0 < readable < 200
     node.destroy_publisher(pub)
     received = []
-    node.create_subscription(String, '/bagtest/chatter', received.append, KEEP_ALL)
-    player = ros_process('rosbag_mcap', 'bag_player', '--ros-args', '-p', f'bag:={cut}',
-                         '-p', 'rate:=0.0', '-p', 'wait_for_subscribers:=1')
+    # Also: the installed defaults file and a ROS remap rule are honoured.
+    node.create_subscription(String, '/bagtest/renamed', received.append, KEEP_ALL)
+    params = repo_root / 'ros2_ws/src/rosbag_mcap/config/bag_player.param.yaml'
+    player = ros_process('rosbag_mcap', 'bag_player', '--ros-args', '--params-file', params,
+                         '-p', f'bag:={cut}', '-p', 'rate:=0.0', '-p', 'wait_for_subscribers:=1',
+                         '-r', '/bagtest/chatter:=/bagtest/renamed')
     assert spin_until(executor, lambda: len(received) >= readable, 30.0), player.output()
     assert player.proc.wait(20.0) == 3, player.output()
     out = player.output()
