@@ -13,6 +13,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from road_sensor_msgs.msg import AssociationScore, TrackArray
 
+from mlkm_assoc.graph import wait_idle
 from mlkm_core.associators.base import AssociatorConfig, make_associator
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate_episodes
@@ -21,6 +22,9 @@ from road_sensors import conversions as conv
 from road_sensors import qos
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+#: What a replay plays: the sensors' side of the graph (not the recorded tracks or scores).
+REPLAYED = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detections)$'
 
 
 def offline_accuracies(config: SimConfig, seed: int, episodes: int, gap: float,
@@ -78,14 +82,20 @@ def listener(rclpy_context):
     lst.close()
 
 
-def test_live_accuracy_equals_offline(ros_process, listener, spin_until) -> None:
+def test_live_equals_offline_and_replay_equals_live(ros_process, listener, spin_until,
+                                                    tmp_path) -> None:
+    """Same seed and method: live accuracy == offline core accuracy on the same datasets;
+    the recorded bag replayed into fresh nodes gives the same accuracy again."""
     episodes, seed = 3, 7
+    bag = tmp_path / 'live_bag'
     assoc = ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=mlkm')
     scorer = ros_process('mlkm_assoc', 'scorer_node')
-    assert spin_until(listener.executor, lambda: listener.tracks_matched(2), 30.0)
+    recorder = ros_process('rosbag_mcap', 'bag_recorder', '--ros-args', '-p', f'output:={bag}',
+                           '-p', 'exclude_regex:=^/(rosout|parameter_events)$')
+    assert spin_until(listener.executor, lambda: listener.tracks_matched(3), 30.0)
     sim = ros_process('road_sensors', 'sensor_sim', '--ros-args', '-p', f'episodes:={episodes}',
-                      '-p', f'seed:={seed}', '-p', 'wait_for_subscribers:=1',
-                      '-p', 'wait_for_truth_subscribers:=1')
+                      '-p', f'seed:={seed}', '-p', 'wait_for_subscribers:=2',
+                      '-p', 'wait_for_truth_subscribers:=2')
     assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), \
         sim.output() + assoc.output() + scorer.output()
     assert sim.proc.wait(30) == 0
@@ -96,6 +106,24 @@ def test_live_accuracy_equals_offline(ros_process, listener, spin_until) -> None
     assert last.mean_accuracy == pytest.approx(np.mean(live))
     assert all(listener.scores[e].total == 1000 for e in range(episodes))
     assert 'episode 0 [mlkm]: accuracy' in scorer.output()
+
+    # Record -> bag -> replay into fresh association and scorer nodes.
+    wait_idle(recorder.pid, timeout=60.0)
+    assert recorder.stop(timeout=30.0) == 0
+    assert (bag / 'metadata.yaml').is_file()
+    assoc.stop()
+    scorer.stop()
+    listener.scores.clear()
+    ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=mlkm')
+    ros_process('mlkm_assoc', 'scorer_node')
+    assert spin_until(listener.executor, lambda: listener.tracks_matched(2), 30.0)
+    player = ros_process('rosbag_mcap', 'bag_player', '--ros-args', '-p', f'bag:={bag}',
+                         '-p', 'rate:=0.0', '-p', f'include_regex:={REPLAYED}',
+                         '-p', 'wait_for_subscribers:=1', '-p', 'linger:=-1.0')
+    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), \
+        player.output()
+    assert [listener.scores[e].accuracy for e in range(episodes)] == live
+    assert all(listener.scores[e].total == 1000 for e in range(episodes))
 
 
 def test_nothing_lost_under_load(ros_process, listener, spin_until) -> None:

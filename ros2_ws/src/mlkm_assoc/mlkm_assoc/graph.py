@@ -100,28 +100,9 @@ class Proc:
         except subprocess.TimeoutExpired:
             return None
 
-    def cpu_seconds(self) -> float:
-        """User + system CPU time the process used so far [s] (Linux /proc)."""
-        try:
-            fields = Path(f'/proc/{self.proc.pid}/stat').read_text().rsplit(')', 1)[1].split()
-        except (FileNotFoundError, IndexError):
-            return 0.0
-        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
-
-    def wait_idle(self, timeout: float = 60.0, period: float = 0.25, quiet: int = 4,
-                  busy_fraction: float = 0.1) -> bool:
-        """Wait until the process is idle (CPU below ``busy_fraction`` for ``quiet``
-        periods in a row), e.g. a recorder that has worked off its backlog."""
-        deadline = time.monotonic() + timeout
-        last, calm = self.cpu_seconds(), 0
-        while time.monotonic() < deadline and self.proc.poll() is None:
-            time.sleep(period)
-            now = self.cpu_seconds()
-            calm = calm + 1 if now - last < busy_fraction * period else 0
-            last = now
-            if calm >= quiet:
-                return True
-        return False
+    def wait_idle(self, timeout: float = 60.0) -> bool:
+        """Wait until the process is idle; see :func:`wait_idle`."""
+        return wait_idle(self.proc.pid, timeout)
 
     def stop(self, grace: float = 10.0) -> int:
         """SIGINT (as Ctrl-C), then SIGTERM, then SIGKILL, to the process group."""
@@ -137,6 +118,34 @@ class Proc:
             _killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait(5.0)
         return self.proc.returncode
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time process ``pid`` used so far [s] (Linux /proc); None if gone."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except (FileNotFoundError, IndexError, ProcessLookupError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def wait_idle(pid: int, timeout: float = 60.0, period: float = 0.25, quiet: int = 4,
+              busy_fraction: float = 0.1) -> bool:
+    """Wait until process ``pid`` is idle (CPU below ``busy_fraction`` for ``quiet``
+    periods in a row), e.g. a recorder that has worked off the messages DDS already
+    delivered to it. False on timeout or when the process is gone."""
+    deadline = time.monotonic() + timeout
+    last, calm = cpu_seconds(pid), 0
+    while last is not None and time.monotonic() < deadline:
+        time.sleep(period)
+        now = cpu_seconds(pid)
+        if now is None:
+            return False
+        calm = calm + 1 if now - last < busy_fraction * period else 0
+        last = now
+        if calm >= quiet:
+            return True
+    return False
 
 
 def _killpg(pgid: int, sig: int) -> None:
