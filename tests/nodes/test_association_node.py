@@ -241,3 +241,26 @@ def test_invalid_parameters_refused(rclpy_context) -> None:
             [Parameter('completion_timeout', value=-1.0)])[0].successful
     finally:
         node.destroy_node()
+
+
+def test_remaps_are_honoured(rclpy_context, spin_until) -> None:
+    """-r remaps the layout and a sensor topic; the node listens where it is told."""
+    node = AssociationNode(context=rclpy_context, cli_args=[
+        '--ros-args', '-r', '/road/sensor_layout:=/elsewhere/layout',
+        '-r', f'/road/sensors/{NAMES[0]}/detections:=/elsewhere/a'])
+    test = Node('remap_test', context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    executor.add_node(test)
+    try:
+        pub = test.create_publisher(SensorLayout, '/elsewhere/layout', qos.LAYOUT_QOS)
+        pub.publish(conv.layout_to_msg(LAYOUT, 0))
+        assert spin_until(executor, lambda: node.assembler.layout is not None, 10.0)
+        det = test.create_publisher(Detection, '/elsewhere/a', qos.DETECTIONS_QOS)
+        assert spin_until(executor, lambda: det.get_subscription_count() >= 1, 10.0)
+        det.publish(conv.detection_to_msg(IDS[0], 10**9, POS[0], 10.0))
+        assert spin_until(executor, lambda: node.assembler.received == 1, 10.0)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        test.destroy_node()
