@@ -162,3 +162,26 @@ def test_invalid_parameter_refused_on_command_line(ros_process, package, exe, pa
     proc = ros_process(package, exe, '--ros-args', '-p', param)
     assert proc.proc.wait(30) == 2
     assert reason in proc.output()
+
+
+def test_clutter_live_equals_offline(ros_process, listener, spin_until) -> None:
+    """Misses, false alarms and noise: sensors with more detections than targets complete
+    early, the late ones make the node re-associate the episode; still live == offline."""
+    episodes, seed, method = 2, 5, 'mlkm_robust'
+    clutter = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2,
+                   velocity_noise=0.5)
+    ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', f'method:={method}')
+    ros_process('mlkm_assoc', 'scorer_node')
+    assert spin_until(listener.executor, lambda: listener.tracks_matched(2), 30.0)
+    args = [a for k, v in clutter.items() for a in ('-p', f'{k}:={v}')]
+    sim = ros_process('road_sensors', 'sensor_sim', '--ros-args', '-p', f'episodes:={episodes}',
+                      '-p', f'seed:={seed}', '-p', 'wait_for_truth_subscribers:=1', *args)
+    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), \
+        sim.output()
+    datasets = simulate_episodes(SimConfig(**clutter), seed, episodes, 10.0)
+    for e, ds in enumerate(datasets):
+        final = listener.finals[e]
+        total = sum(len(t.sensor_ids) for t in final.tracks) + len(final.unassigned_sensor_ids)
+        assert total == len(ds.detections)  # every detection in a track or unassigned
+    live = [listener.scores[e].accuracy for e in range(episodes)]
+    assert live == offline_accuracies(SimConfig(**clutter), seed, episodes, 10.0, method)
