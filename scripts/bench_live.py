@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
+import statistics
 import sys
 import tempfile
 import time
@@ -143,40 +145,55 @@ def _association_run(domain_id: int, log_dir: Path, episodes: int, seed: int,
 
 
 def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
-        method: str = 'mlkm', seed: int = 0) -> dict:
-    """Run both measurements; write ``live.json`` and ``live.md`` in ``out_dir``."""
+        method: str = 'mlkm', seed: int = 0, repeats: int = 3) -> dict:
+    """Run both measurements ``repeats`` times, alternating (the machine is shared, so
+    medians over interleaved runs); write ``live.json`` and ``live.md`` in ``out_dir``."""
     from mlkm_assoc.graph import domain
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     log_dir = Path(tempfile.mkdtemp(prefix='mlkm_bench_live_'))
+    bares, assocs = [], []
     with domain() as domain_id:
-        bare = _bare_run(domain_id, log_dir, episodes, seed)
-        assoc = _association_run(domain_id, log_dir, episodes, seed, method)
+        for i in range(repeats):
+            bares.append(_bare_run(domain_id, log_dir / str(i), episodes, seed))
+            assocs.append(_association_run(domain_id, log_dir / str(i), episodes, seed,
+                                           method))
     expected = TARGETS * SENSORS * episodes
-    assoc_rate = float(assoc['ingest_rate'])
+    bare_rate = statistics.median(b['ingest_rate'] for b in bares)
+
+    def med(key: str) -> float:
+        return statistics.median(float(a[key]) for a in assocs)
+
+    assoc_rate = med('ingest_rate')
     result = {
         'scenario': {'targets': TARGETS, 'sensors': SENSORS, 'episodes': episodes,
                      'detections': expected, 'real_time_factor': 0.0, 'seed': seed,
-                     'method': method, 'segment_size': int(assoc['segment_size'])},
-        'bare_subscriber': {'received': bare['received'],
-                            'ingest_rate': round(bare['ingest_rate'], 1)},
+                     'method': method, 'segment_size': int(assocs[0]['segment_size']),
+                     'repeats': repeats},
+        'bare_subscriber': {'received': [b['received'] for b in bares],
+                            'ingest_rate': round(bare_rate, 1),
+                            'ingest_rate_runs': [round(b['ingest_rate'], 1) for b in bares]},
         'association_node': {
-            'received': int(assoc['received']),
-            'rejected': int(assoc['rejected']),
+            'received': [int(a['received']) for a in assocs],
+            'rejected': [int(a['rejected']) for a in assocs],
             'ingest_rate': round(assoc_rate, 1),
-            'segments': int(assoc['latency_count']),
-            'latency_p50': float(assoc['latency_p50']),
-            'latency_p95': float(assoc['latency_p95']),
-            'overhead_p50': float(assoc['overhead_p50']),
-            'overhead_p95': float(assoc['overhead_p95']),
-            'solve_time_mean': float(assoc['solve_time_mean']),
-            'solve_time_max': float(assoc['solve_time_max']),
+            'ingest_rate_runs': [round(float(a['ingest_rate']), 1) for a in assocs],
+            'segments': int(assocs[0]['latency_count']),
+            'latency_p50': med('latency_p50'),
+            'latency_p95': med('latency_p95'),
+            'latency_p95_runs': [float(a['latency_p95']) for a in assocs],
+            'overhead_p50': med('overhead_p50'),
+            'overhead_p95': med('overhead_p95'),
+            'solve_time_mean': med('solve_time_mean'),
+            'solve_time_max': med('solve_time_max'),
         },
-        'ingest_ratio': round(assoc_rate / bare['ingest_rate'], 3) if bare['ingest_rate'] else 0,
-        'nothing_lost': int(assoc['received']) == expected and bare['received'] == expected,
+        'ingest_ratio': round(assoc_rate / bare_rate, 3) if bare_rate else 0,
+        'nothing_lost': (all(int(a['received']) == expected for a in assocs)
+                         and all(b['received'] == expected for b in bares)),
         'targets': {'ingest_ratio_min': 0.7, 'latency_p95_max': 0.1},
-        'machine': {'python': platform.python_version(), 'cpus': _cpus()},
+        'machine': {'python': platform.python_version(), 'cpus': _cpus(),
+                    'load_average_1min': round(os.getloadavg()[0], 2)},
         'date_utc': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
     }
     (out_dir / 'live.json').write_text(json.dumps(result, indent=2) + '\n')
@@ -185,8 +202,6 @@ def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
 
 
 def _cpus() -> int:
-    import os
-
     return len(os.sched_getaffinity(0))
 
 
@@ -199,12 +214,15 @@ def _markdown(r: dict) -> str:
 Stream: `sensor_sim` at real_time_factor 0, {s['targets']} targets on {s['sensors']} sensors,
 {s['episodes']} episodes ({s['detections']} detections), seed {s['seed']}; association
 method `{s['method']}`, segment_size {s['segment_size']}. Real executables over loopback DDS,
-{r['machine']['cpus']} CPUs, {r['date_utc']}.
+{r['machine']['cpus']} CPUs (shared; 1-min load average {r['machine']['load_average_1min']}),
+{r['date_utc']}. Medians of {s['repeats']} interleaved runs of each receiver.
 
 | receiver | detections received | ingest rate [msg/s] |
 | --- | ---: | ---: |
 | bare rclpy subscriber (count only) | {b['received']} | {b['ingest_rate']:.0f} |
 | `association_node` | {a['received']} | {a['ingest_rate']:.0f} |
+
+Per run [msg/s]: bare {b['ingest_rate_runs']}, association {a['ingest_rate_runs']}.
 
 Ingest ratio association / bare: **{r['ingest_ratio']:.2f}** (target >= 0.70: {ok_rate}).
 Nothing lost: {r['nothing_lost']}.
@@ -230,8 +248,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--episodes', type=int, default=3)
     p.add_argument('--method', default='mlkm')
     p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--repeats', type=int, default=3)
     args = p.parse_args(argv)
-    result = run(args.out, args.episodes, args.method, args.seed)
+    result = run(args.out, args.episodes, args.method, args.seed, args.repeats)
     print((args.out / 'live.md').read_text())
     return 0 if result['nothing_lost'] else 1
 

@@ -246,6 +246,7 @@ def _serve(jobs, results, parent: int) -> None:
         threadpool_limits(1)  # one core for the solver: the other one is the node's
     except ImportError:
         pass
+    _warm_up()
     solver = Solver()
     while True:
         try:
@@ -258,3 +259,24 @@ def _serve(jobs, results, parent: int) -> None:
             results.put(None)
             return
         results.put(encode(solver.run(job)))
+
+
+def _warm_up() -> None:
+    """Pay the first-call costs (imports, sklearn and message type support) before the first
+    real segment arrives, so that its latency is not inflated by them."""
+    from mlkm_core.associators.base import AssociatorConfig
+    from mlkm_core.types import Layout
+
+    layout = Layout(10.0, np.array([2.0, 4.0, 6.0]))
+    rng = np.random.default_rng(0)
+    n = 3
+    stamps = np.concatenate([np.arange(n) * 10.0 + p / 5.0 for p in (2.0, 4.0, 6.0)])
+    part = Part(np.repeat(np.arange(3), n), (stamps * 1e9).astype(np.int64),
+                5.0 + rng.random(3 * n))
+    job = Job(kind='segment', episode_id=0, layout=layout, n_targets=n, method='mlkm',
+              associator_config=AssociatorConfig(segment_size=3), segment=0, segments_total=1,
+              parts=(part,), completed_at=0.0)
+    try:
+        encode(Solver().run(job))
+    except Exception:  # noqa: BLE001 - only a warm-up; real errors show on real jobs
+        pass
