@@ -183,6 +183,8 @@ def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
             'latency_p50': med('latency_p50'),
             'latency_p95': med('latency_p95'),
             'latency_p95_runs': [float(a['latency_p95']) for a in assocs],
+            'queue_wait_p50': med('queue_wait_p50'),
+            'queue_wait_p95': med('queue_wait_p95'),
             'overhead_p50': med('overhead_p50'),
             'overhead_p95': med('overhead_p95'),
             'solve_time_mean': med('solve_time_mean'),
@@ -231,12 +233,31 @@ Segment complete -> tracks published, over {a['segments']} segments:
 
 | | p50 [ms] | p95 [ms] |
 | --- | ---: | ---: |
-| latency | {a['latency_p50'] * 1e3:.1f} | {a['latency_p95'] * 1e3:.1f} |
-| node overhead (latency - solve) | {a['overhead_p50'] * 1e3:.1f} | {a['overhead_p95'] * 1e3:.1f} |
+{_latency_rows(a)}
 
-Solve time per segment (the core associator): mean {a['solve_time_mean'] * 1e3:.1f} ms, max
-{a['solve_time_max'] * 1e3:.1f} ms. Target p95 latency <= 100 ms: {ok_lat}.
+Target p95 latency <= 100 ms: {ok_lat}. Why it looks like this: at real_time_factor 0 the
+stream arrives as one burst, and a segment is complete only once the episode's last target
+has passed its sensors, so all segments of an episode complete within its last few hundred
+detections and then wait for one another in the solver, which takes them strictly in order
+(MLKM layer 3 matches each segment against the ones before it). The latency is therefore
+about (segments queued) x (solve time per segment); the node's own share is the last row.
 """
+
+
+def _latency_rows(a: dict) -> str:
+    rows = [('latency', 'latency'),
+            ('of which waiting behind earlier segments', 'queue_wait'),
+            ('of which solving (the core associator)', None),
+            ("of which the node's own work (IPC, message, publish)", 'overhead')]
+    out = []
+    for label, key in rows:
+        if key is None:
+            out.append(f'| {label} | mean {a["solve_time_mean"] * 1e3:.1f} | '
+                       f'max {a["solve_time_max"] * 1e3:.1f} |')
+        else:
+            out.append(f'| {label} | {a[key + "_p50"] * 1e3:.1f} | '
+                       f'{a[key + "_p95"] * 1e3:.1f} |')
+    return '\n'.join(out)
 
 
 def main(argv: list[str] | None = None) -> int:

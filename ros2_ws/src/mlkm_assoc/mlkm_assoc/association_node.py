@@ -71,7 +71,8 @@ class AssociationNode(Node):
         self._solver: SolverProcess = SolverProcess()
         self._solve_times: list[float] = []
         self._latencies: list[float] = []  # segment complete -> its tracks published [s]
-        self._overheads: list[float] = []  # the same, less the associator's solve time [s]
+        self._waits: list[float] = []  # of which waiting for the solver (earlier segments)
+        self._overheads: list[float] = []  # of which neither waiting nor solving [s]
         self._solver_errors: int = 0
         self._tracks_published: int = 0
         self._finals_published: int = 0
@@ -196,7 +197,9 @@ class AssociationNode(Node):
             self._solve_times.append(update.solve_time)
             if not update.forced:
                 self._latencies.append(latency)
-                self._overheads.append(latency - update.solve_time)
+                wait = update.started_at - update.completed_at
+                self._waits.append(wait)
+                self._overheads.append(latency - wait - update.solve_time)
         else:
             self._finals_published += 1
             self.get_logger().info(
@@ -232,6 +235,9 @@ class AssociationNode(Node):
         values['latency_p50'] = f'{_quantile(lat, 0.5):.6f}' if lat else ''
         values['latency_p95'] = f'{_quantile(lat, 0.95):.6f}' if lat else ''
         values['latency_count'] = len(lat)
+        waits = list(self._waits)
+        values['queue_wait_p50'] = f'{_quantile(waits, 0.5):.6f}' if waits else ''
+        values['queue_wait_p95'] = f'{_quantile(waits, 0.95):.6f}' if waits else ''
         over = list(self._overheads)
         values['overhead_p50'] = f'{_quantile(over, 0.5):.6f}' if over else ''
         values['overhead_p95'] = f'{_quantile(over, 0.95):.6f}' if over else ''

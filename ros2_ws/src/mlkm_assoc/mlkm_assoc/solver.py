@@ -41,6 +41,7 @@ class Result:
     completed_at: float  # monotonic time the segment was complete
     forced: bool
     error: str | None = None
+    started_at: float = 0.0  # monotonic time the solver took the job
 
 
 class _EpisodeSolve:
@@ -112,6 +113,7 @@ class Solver:
         self._episodes: dict[int, _EpisodeSolve] = {}
 
     def run(self, job: Job) -> Result:
+        started_at = time.monotonic()
         t0 = time.perf_counter()
         error = None
         if job.kind == 'segment':
@@ -145,7 +147,8 @@ class Solver:
                       final=job.kind != 'segment', segments_done=state.segments_done,
                       segments_total=job.segments_total, layout=job.layout, sensor_index=si,
                       stamps_ns=ns, velocities=vel, labels=state.ids, solve_time=solve_time,
-                      completed_at=job.completed_at, forced=job.forced, error=error)
+                      completed_at=job.completed_at, forced=job.forced, error=error,
+                      started_at=started_at)
 
     @staticmethod
     def _add(state: _EpisodeSolve, job: Job, part: Part) -> tuple[np.ndarray, str | None]:
@@ -181,6 +184,7 @@ class Update:
     completed_at: float  # monotonic time the segment was complete
     forced: bool
     error: str | None
+    started_at: float  # monotonic time the solver took the job
 
 
 def encode(result: Result) -> Update:
@@ -202,7 +206,8 @@ def encode(result: Result) -> Update:
                   final=result.final, detections=int(labels.size),
                   tracks=int(np.unique(labels[labels >= 0]).size),
                   unassigned=int((labels < 0).sum()), solve_time=result.solve_time,
-                  completed_at=result.completed_at, forced=result.forced, error=result.error)
+                  completed_at=result.completed_at, forced=result.forced, error=result.error,
+                  started_at=result.started_at)
 
 
 class SolverProcess:
