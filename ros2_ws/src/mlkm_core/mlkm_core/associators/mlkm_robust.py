@@ -22,8 +22,8 @@ changes, and why:
 * **Counts that differ from N_A** (misses, false alarms) need no special case: dummies absorb
   them, and a track of a single detection is labelled UNASSIGNED (a false alarm).
 
-Parameters: the nominal pairwise model of ``tracker.MotionParams`` (no self-calibration; the
-variances only shape the cost, and generous noise floors keep it robust).
+Parameters: the variances of the pairwise cost are estimated from the data exactly as for
+``assignment`` (``tracker.estimate_params``).
 """
 
 from __future__ import annotations
@@ -34,10 +34,8 @@ from mlkm_core.associators.base import Associator, register
 from mlkm_core.associators.kmeans import canonical_order, kmeans_labels
 from mlkm_core.associators.linking import match_sparse, relabel
 from mlkm_core.associators.mlkm import detect_errors
-from mlkm_core.associators.tracker import MotionParams, PairwiseModel
+from mlkm_core.associators.tracker import MotionParams, PairwiseModel, estimate_params
 from mlkm_core.types import Detections, Layout, segments
-
-PARAMS = MotionParams(stamp_noise=0.2, velocity_noise=0.5, p_miss=0.05, clutter_density=0.1)
 
 
 def _pair_weights(p: MotionParams, x1: np.ndarray, t1: np.ndarray, u1: np.ndarray, x2: float,
@@ -101,15 +99,28 @@ def correct_by_assignment(positions: np.ndarray, d: Detections, labels: np.ndarr
     next_label = int(labels.max()) + 1
     u = 1.0 / d.velocity
 
-    def take(j: int, ref: int) -> None:
+    def take(j: int, processed: np.ndarray, backward: bool) -> None:
+        """Match sensor j's detections one-to-one to the cluster ends nearest to j among the
+        processed sensors (a cluster missed at the neighbouring sensor is still reachable)."""
         nonlocal next_label
-        mj, mr = members[j], members[ref]
-        xr, xj = positions[sensors[ref]], positions[sensors[j]]
-        r, c, w = _pair_weights(p, np.full(mr.size, xr), d.stamp[mr], u[mr], xj, d.stamp[mj],
-                                u[mj])
-        mr_i, mc_i = match_sparse(r, c, w, mr.size, mj.size)
+        mj = members[j]
+        pool = np.concatenate([members[k] for k in processed]) if processed.size else (
+            np.zeros(0, np.int64))
+        if pool.size:
+            key = d.sensor_index[pool] if backward else -d.sensor_index[pool]
+            pool = pool[np.argsort(key, kind='stable')]
+            _, first = np.unique(labels[pool], return_index=True)
+            ends = pool[first]
+            skipped = np.abs(d.sensor_index[ends] - sensors[j]) - 1
+            x_end = positions[d.sensor_index[ends]]
+            r, c, w = _pair_weights(p, x_end, d.stamp[ends], u[ends],
+                                    float(positions[sensors[j]]), d.stamp[mj], u[mj], skipped)
+            mr_i, mc_i = match_sparse(r, c, w, ends.size, mj.size)
+        else:
+            mr_i = mc_i = np.zeros(0, np.int64)
         new = np.full(mj.size, -1, dtype=np.int64)
-        new[mc_i] = labels[mr[mr_i]]
+        if mr_i.size:
+            new[mc_i] = labels[ends[mr_i]]
         free = new < 0
         new[free] = np.arange(next_label, next_label + int(free.sum()))
         next_label += int(free.sum())
@@ -117,9 +128,9 @@ def correct_by_assignment(positions: np.ndarray, d: Detections, labels: np.ndarr
 
     for j in range(last - 1, -1, -1):
         if not trusted[j]:
-            take(j, j + 1)
+            take(j, np.arange(j + 1, last + 1), backward=True)
     for j in range(last + 1, sensors.size):
-        take(j, j - 1)
+        take(j, np.arange(0, j), backward=False)
     return labels
 
 
@@ -127,13 +138,14 @@ def correct_by_assignment(positions: np.ndarray, d: Detections, labels: np.ndarr
 class RobustMLKM(Associator):
     name = 'mlkm_robust'
 
-    def solve_segment(self, layout: Layout, d: Detections, n_targets: int) -> np.ndarray:
+    def solve_segment(self, layout: Layout, d: Detections, n_targets: int, p: MotionParams
+                      ) -> np.ndarray:
         """Layers 1 and 2 on one segment (``d`` in canonical order): local cluster labels."""
         labels, _ = kmeans_labels(np.column_stack([d.velocity, d.stamp]), n_targets,
                                   'k-means++', self.config.seed)
         errors = detect_errors(d.sensor_index, d.stamp, labels)
-        flagged = errors.flagged | implausible_links(layout.positions, d, labels, PARAMS)
-        labels = correct_by_assignment(layout.positions, d, labels, flagged, PARAMS)
+        flagged = errors.flagged | implausible_links(layout.positions, d, labels, p)
+        labels = correct_by_assignment(layout.positions, d, labels, flagged, p)
         return np.unique(labels, return_inverse=True)[1].reshape(-1)
 
     def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
@@ -142,7 +154,7 @@ class RobustMLKM(Associator):
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d) == 0:
             return out
-        p = PARAMS
+        p, _ = estimate_params(layout, d)
         pos = layout.positions
         u = 1.0 / d.velocity
         track = np.full(len(d), -1, dtype=np.int64)
@@ -153,7 +165,7 @@ class RobustMLKM(Associator):
             idx = np.flatnonzero(np.isin(d.sensor_index, seg))
             if idx.size == 0:
                 continue
-            local = self.solve_segment(layout, d.subset(idx), n_targets)
+            local = self.solve_segment(layout, d.subset(idx), n_targets, p)
             n_c = int(local.max()) + 1
             # first and last detection of each cluster (canonical order is by sensor, stamp)
             first = np.full(n_c, -1, dtype=np.int64)

@@ -29,7 +29,7 @@ import numpy as np
 
 from mlkm_core.associators.base import Associator, register
 from mlkm_core.associators.linking import relabel
-from mlkm_core.associators.tracker import canonical, estimate_params, link, refine
+from mlkm_core.associators.tracker import canonical, estimate_params, link, refine, total_nll
 from mlkm_core.types import Detections, Layout
 
 
@@ -43,6 +43,13 @@ class MultiFrameAssociator(Associator):
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d):
             params, _ = estimate_params(layout, d)
-            raw = link(layout, d, params, 'kalman')
-            out[order] = relabel(refine(layout, d, raw, params))
+            # local search from two starting points (the Kalman and the pairwise forward
+            # pass); keep the more likely result under the Kalman model
+            best, best_nll = None, np.inf
+            for model in ('kalman', 'pairwise'):
+                lab = refine(layout, d, link(layout, d, params, model), params)
+                nll = total_nll(layout, d, lab, params)
+                if nll < best_nll:
+                    best, best_nll = lab, nll
+            out[order] = relabel(best)
         return out
