@@ -185,3 +185,14 @@ def test_clutter_live_equals_offline(ros_process, listener, spin_until) -> None:
         assert total == len(ds.detections)  # every detection in a track or unassigned
     live = [listener.scores[e].accuracy for e in range(episodes)]
     assert live == offline_accuracies(SimConfig(**clutter), seed, episodes, 10.0, method)
+
+
+def test_invalid_value_in_params_file_refused(ros_process, tmp_path) -> None:
+    params = tmp_path / 'bad.param.yaml'
+    params.write_text('association_node:\n  ros__parameters:\n    method: nope\n'
+                      '    segment_size: 3\n')
+    proc = ros_process('mlkm_assoc', 'association_node', '--ros-args',
+                       '--params-file', str(params))
+    assert proc.proc.wait(30) == 2
+    out = proc.output()
+    assert "unknown method 'nope'; choose one of" in out and 'mlkm' in out
