@@ -264,3 +264,22 @@ def test_remaps_are_honoured(rclpy_context, spin_until) -> None:
         executor.shutdown()
         node.destroy_node()
         test.destroy_node()
+
+
+def test_new_layout_moves_the_subscriptions(harness) -> None:
+    h = harness()
+    h.layout_pub.publish(conv.layout_to_msg(LAYOUT, 0))
+    h.wait_matched()
+    other = Layout(900.0, np.array([300.0, 600.0]), np.array([7, 8]), ('s_x', 's_y'))
+    pubs = [h.test.create_publisher(Detection, qos.detections_topic(n), qos.DETECTIONS_QOS)
+            for n in other.names]
+    h.layout_pub.publish(conv.layout_to_msg(other, 0))
+    h.wait(lambda: all(p.get_subscription_count() == 1 for p in pubs))
+    h.wait(lambda: all(p.get_subscription_count() == 0 for p in h.det_pubs))
+    assert h.node.assembler.layout.n_sensors == 2
+    # An invalid layout (a sensor name that cannot be a topic name) is refused, not fatal.
+    bad = conv.layout_to_msg(other, 0)
+    bad.sensor_names = ['s_x', 'bad name']
+    h.layout_pub.publish(bad)
+    h.wait(lambda: h.node.assembler.rejected['invalid_layout'] == 1)
+    assert h.node.assembler.layout.n_sensors == 2

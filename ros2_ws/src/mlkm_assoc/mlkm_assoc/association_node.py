@@ -117,13 +117,13 @@ class AssociationNode(Node):
     def _on_layout(self, msg: SensorLayout) -> None:
         try:
             layout = conv.layout_from_msg(msg)
-        except ValueError as exc:
+            wanted = {self.resolve_topic_name(qos.detections_topic(n)) for n in layout.names}
+        except Exception as exc:  # noqa: BLE001 - invalid values or sensor names
             self._assembler.rejected['invalid_layout'] += 1
             self.get_logger().error(f'sensor layout refused: {exc}')
             return
         if not self._assembler.set_layout(layout, time.monotonic()):
             return
-        wanted = {self.resolve_topic_name(qos.detections_topic(n)) for n in layout.names}
         for topic in list(self._det_subs):
             if topic not in wanted:
                 self.destroy_subscription(self._det_subs.pop(topic))
