@@ -42,12 +42,12 @@ CLUTTER = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2,
                velocity_noise=0.5)
 MODES = ('paper', 'clutter')
 CELLS = ((10, 10), (50, 20), (200, 50), (1000, 100))
-SEEDS_FULL = {(10, 10): 40, (50, 20): 30, (200, 50): 8, (1000, 100): 3}
+SEEDS_FULL = {(10, 10): 40, (50, 20): 30, (200, 50): 8, (1000, 100): 2}
 SEEDS_QUICK = {(10, 10): 4, (50, 20): 3, (200, 50): 1, (1000, 100): 1}
 # time budget [s] of one (method, cell, mode): all its datasets
 BUDGET = {(10, 10): 60.0, (50, 20): 120.0, (200, 50): 150.0, (1000, 100): 120.0}
 COST_TARGETS = (50, 150, 500, 1500, 5000, 10000)  # x 20 sensors = 1e3 .. 2e5 detections
-COST_LIMIT = 60.0  # [s] per point
+COST_LIMIT = 45.0  # [s] per point
 PEER_SEEDS = {(10, 10): 10, (50, 20): 5}
 BEST = 'multiframe'
 BASELINE = 'assignment'

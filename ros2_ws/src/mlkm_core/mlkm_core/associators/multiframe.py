@@ -14,7 +14,8 @@ from higher-order evidence. Two sources, both in ``tracker``:
    also stitches a track lost after misses onto the track that was born from its detections),
    are scored by the Kalman marginal likelihood of both tracks over +-8 sensors around the
    exchange, i.e. with look-ahead as well as history; improving moves are applied greedily
-   until none is left.
+   until none is left. It starts from the Kalman pass and, for inputs of up to 5000
+   detections, also from the pairwise pass; the more likely result (Kalman model) is kept.
 
 Why this and not a min-cost flow or a full multi-dimensional assignment: the flow needs
 pairwise (Markov) edge costs, which cannot carry the learnt cruise speed, and the S-D
@@ -32,6 +33,10 @@ from mlkm_core.associators.linking import relabel
 from mlkm_core.associators.tracker import canonical, estimate_params, link, refine, total_nll
 from mlkm_core.types import Detections, Layout
 
+#: above this many detections the search starts from the Kalman pass only (cost; the second
+#: start matters where few detections make the self-calibration noisy)
+DUAL_START_MAX = 5000
+
 
 @register
 class MultiFrameAssociator(Associator):
@@ -46,7 +51,8 @@ class MultiFrameAssociator(Associator):
             # local search from two starting points (the Kalman and the pairwise forward
             # pass); keep the more likely result under the Kalman model
             best, best_nll = None, np.inf
-            for model in ('kalman', 'pairwise'):
+            starts = ('kalman', 'pairwise') if len(d) <= DUAL_START_MAX else ('kalman',)
+            for model in starts:
                 lab = refine(layout, d, link(layout, d, params, model), params)
                 nll = total_nll(layout, d, lab, params)
                 if nll < best_nll:

@@ -400,7 +400,8 @@ def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams
 
 def sequence_nll(layout: Layout, d: Detections, seqs: np.ndarray, params: MotionParams,
                  birth: np.ndarray | None = None, end: np.ndarray | None = None,
-                 rows: dict[str, np.ndarray] | None = None) -> np.ndarray:
+                 rows: dict[str, np.ndarray] | None = None, state: dict | None = None,
+                 finish: bool = True) -> np.ndarray | tuple[np.ndarray, dict]:
     """Kalman marginal NLL of each detection sequence (rows of ``seqs``, -1 = no detection).
 
     Columns are visited in order; a row's entries must have increasing sensors (gaps allowed).
@@ -410,20 +411,25 @@ def sequence_nll(layout: Layout, d: Detections, seqs: np.ndarray, params: Motion
     before its first detection (capped at ``max_skip + 1``: targets enter before the first
     sensor); one flagged ``end`` (the track ends here) with two detections or more pays the
     miss cost of every sensor after its last one (capped at 10). A single detection is a
-    false alarm: the new-track cost only.
-    ``rows`` optionally gives per-row motion parameters (see ``KalmanModel``).
+    false alarm: the new-track cost only. ``rows`` optionally gives per-row motion parameters
+    (see ``KalmanModel``). ``state`` continues rows from a returned state (``finish=False``
+    returns ``(nll so far, state)`` without the birth / end costs).
     """
     n_seq, width = seqs.shape
-    out = np.zeros(n_seq)
-    if n_seq == 0:
-        return out
     birth = np.ones(n_seq, bool) if birth is None else birth
     end = np.zeros(n_seq, bool) if end is None else end
     m = KalmanModel(params, rows)
-    m.grow(n_seq)
-    last = np.full(n_seq, -1, dtype=np.int64)
-    first_sensor = np.zeros(n_seq, dtype=np.int64)
-    count = (seqs >= 0).sum(axis=1)
+    if state is None:
+        m.grow(n_seq)
+        out = np.zeros(n_seq)
+        last = np.full(n_seq, -1, dtype=np.int64)
+        first_sensor = np.zeros(n_seq, dtype=np.int64)
+        count = np.zeros(n_seq, dtype=np.int64)
+    else:
+        m.x, m.mean, m.cov = state['x'].copy(), state['mean'].copy(), state['cov'].copy()
+        out, last = state['out'].copy(), state['last'].copy()
+        first_sensor, count = state['first_sensor'].copy(), state['count'].copy()
+    count = count + (seqs >= 0).sum(axis=1)
     u_all = 1.0 / d.velocity
     cap = 4 * params.gate
     for k in range(width):
@@ -451,6 +457,9 @@ def sequence_nll(layout: Layout, d: Detections, seqs: np.ndarray, params: Motion
             m._cache = (r1, None, mean, cov)
             m.update(r1, x[nxt], t[nxt], u[nxt], pos=np.arange(r1.size))
         last[live] = s
+    if not finish:
+        return out, {'x': m.x, 'mean': m.mean, 'cov': m.cov, 'out': out, 'last': last,
+                     'first_sensor': first_sensor, 'count': count}
     # a track (two detections or more) that starts late or ends early missed the sensors
     # before / after it; a single detection is a false alarm and pays the new-track cost only
     n_s = layout.n_sensors
@@ -460,6 +469,10 @@ def sequence_nll(layout: Layout, d: Detections, seqs: np.ndarray, params: Motion
     ended = end & several
     out[ended] += np.minimum(n_s - 1 - last[ended], 10) * params.miss_cost
     return out
+
+
+def _take_state(state: dict, idx: np.ndarray) -> dict:
+    return {k: v[idx] for k, v in state.items()}
 
 
 def _candidates(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
@@ -484,7 +497,7 @@ def _candidates(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
                 pw.start(ids, layout.positions[d.sensor_index[act]], d.stamp[act], u_all[act])
                 x = float(layout.positions[s])
                 centre, half = pw.gate_window(ids, x)
-                r, c = gate_pairs(centre, half, d.stamp[idx])
+                r, c = gate_pairs(centre, half * CANDIDATE_GATE, d.stamp[idx])
                 a, b = labels[act[r]], labels[idx[c]]
                 ok = (a != b) & (b >= 0)
                 out_a.append(a[ok])
@@ -498,12 +511,14 @@ def _candidates(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
     return np.concatenate(out_a), np.concatenate(out_b), np.concatenate(out_s)
 
 
-#: exchange lengths tried for each candidate: the whole tail (0), 1 and 2 sensors
-MOVES = (0, 1, 2, 3, 5, 8)
+#: exchange lengths tried for each candidate: the whole tail (0) or 1, 2, 3, 5 sensors
+MOVES = (0, 1, 2, 3, 5)
+#: candidate time window as a fraction of the tracking gate (4 of 6 sigma)
+CANDIDATE_GATE = 4 / 6
 
 
 def refine(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams,
-           window: int = 10, rounds: int = 10) -> np.ndarray:
+           window: int = 6, rounds: int = 10) -> np.ndarray:
     """Local search on track exchanges, scored by Kalman likelihood over several sensors.
 
     A move (A, B, s, k) exchanges between tracks A and B their detections at sensors
@@ -545,14 +560,24 @@ def refine(layout: Layout, d: Detections, labels: np.ndarray, params: MotionPara
         lo, hi = cs - window, cs + window
         a_born, b_born = first_s[ca] >= lo, first_s[cb] >= lo
         a_more, b_more = last_s[ca] >= hi, last_s[cb] >= hi
-        seqs, birth, end = [wa, wb], [a_born, b_born], [~a_more, ~b_more]
+        # the prefix (sensors before s) is the same for old and new sequences: filter it
+        # once, then continue every old and new suffix from the prefix state of its owner
+        n_c = ca.size
+        birth2 = np.concatenate([a_born, b_born])
+        _, pre = sequence_nll(layout, d, np.concatenate([wa[:, :window], wb[:, :window]]),
+                              params, birth2, finish=False)
+        sa, sb = wa[:, window:], wb[:, window:]
+        suf, owner, end = [sa, sb], [np.arange(n_c), n_c + np.arange(n_c)], [~a_more, ~b_more]
         for k in MOVES:
-            region = (cols >= cs[:, None]) & ((cols < cs[:, None] + k) if k else True)
-            seqs += [np.where(region, wb, wa), np.where(region, wa, wb)]
-            birth += [a_born, b_born]
+            region = (cols[:, window:] >= cs[:, None]) & (
+                (cols[:, window:] < cs[:, None] + k) if k else True)
+            suf += [np.where(region, sb, sa), np.where(region, sa, sb)]
+            owner += [np.arange(n_c), n_c + np.arange(n_c)]
             end += [~b_more, ~a_more] if k == 0 else [~a_more, ~b_more]
-        nll = sequence_nll(layout, d, np.concatenate(seqs), params, np.concatenate(birth),
-                           np.concatenate(end)).reshape(len(seqs), -1)
+        owner = np.concatenate(owner)
+        nll = sequence_nll(layout, d, np.concatenate(suf), params, birth2[owner],
+                           np.concatenate(end), state=_take_state(pre, owner)
+                           ).reshape(len(suf), -1)
         gain = np.stack([nll[2 + 2 * j] + nll[3 + 2 * j] - nll[0] - nll[1]
                          for j in range(len(MOVES))], axis=1)  # (n_cand, n_moves)
         flat = np.flatnonzero(gain.ravel() < -1e-6)
