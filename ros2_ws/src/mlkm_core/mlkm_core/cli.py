@@ -211,7 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--datasets', type=_positive, default=100,
                    help='seeded datasets per configuration (default: 100)')
     p.add_argument('--dnn-datasets', type=_positive, default=None,
-                   help='datasets per DNN split (default: min(datasets, 20))')
+                   help='datasets per DNN split (default: min(datasets, 10))')
     p.add_argument('--out', default='results/paper', help='output directory')
     p.add_argument('--jobs', type=_positive, default=2, help='worker processes (default: 2)')
     p.add_argument('--segment-size', type=_positive, default=default_k,
