@@ -145,7 +145,7 @@ def _association_run(domain_id: int, log_dir: Path, episodes: int, seed: int,
 
 
 def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
-        method: str = 'mlkm', seed: int = 0, repeats: int = 3) -> dict:
+        method: str = 'mlkm', seed: int = 0, repeats: int = 5) -> dict:
     """Run both measurements ``repeats`` times, alternating (the machine is shared, so
     medians over interleaved runs); write ``live.json`` and ``live.md`` in ``out_dir``."""
     from mlkm_assoc.graph import domain
@@ -269,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--episodes', type=int, default=3)
     p.add_argument('--method', default='mlkm')
     p.add_argument('--seed', type=int, default=0)
-    p.add_argument('--repeats', type=int, default=3)
+    p.add_argument('--repeats', type=int, default=5)
     args = p.parse_args(argv)
     result = run(args.out, args.episodes, args.method, args.seed, args.repeats)
     print((args.out / 'live.md').read_text())

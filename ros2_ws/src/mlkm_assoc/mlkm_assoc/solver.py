@@ -218,16 +218,22 @@ class SolverProcess:
     def __init__(self) -> None:
         ctx = multiprocessing.get_context('spawn')
         self._jobs = ctx.Queue()
-        self._results = ctx.Queue()
-        self._proc = ctx.Process(target=_serve, args=(self._jobs, self._results, os.getpid()),
+        # Results come back through a pipe written synchronously by the solver's main thread
+        # (a Queue's feeder thread would wait for the GIL behind the next solve).
+        self._results, sender = ctx.Pipe(duplex=False)
+        self._proc = ctx.Process(target=_serve, args=(self._jobs, sender, os.getpid()),
                                  name='mlkm_solver', daemon=True)
         self._proc.start()
+        sender.close()  # the child holds the only writer: its exit ends get() with None
 
     def submit(self, job: Job | None) -> None:
         self._jobs.put(job)
 
     def get(self) -> Update | None:
-        return self._results.get()
+        try:
+            return self._results.recv()
+        except (EOFError, OSError):
+            return None
 
     def close(self, timeout: float = 5.0) -> None:
         if self._proc.is_alive():
@@ -236,7 +242,6 @@ class SolverProcess:
         if self._proc.is_alive():
             self._proc.terminate()
             self._proc.join(2.0)
-        self._results.put(None)  # wakes a reader blocked in get()
 
 
 def _serve(jobs, results, parent: int) -> None:
@@ -261,9 +266,10 @@ def _serve(jobs, results, parent: int) -> None:
                 return
             continue
         if job is None:
-            results.put(None)
+            results.send(None)
+            results.close()
             return
-        results.put(encode(solver.run(job)))
+        results.send(encode(solver.run(job)))
 
 
 def _warm_up() -> None:
