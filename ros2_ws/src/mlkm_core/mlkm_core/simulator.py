@@ -49,7 +49,8 @@ of issue 2's section 5 relations hold with margin and MLKM lands near the paper'
   mistakes, and Layer 3 projects centroids whose speed is a 5-sensor average; hence
   K-means++(P) < MLKM w/o EC < MLKM w/ EC.
 * Longer roads (>= 1 km) ruin Layer 1 without correction (MLKM w/o EC falls below P); weak
-  fluctuation (< 3 m/s) lets P match MLKM; long correlation (>= 1 km) helps every method.
+  fluctuation (< 3 m/s) puts P above MLKM w/o EC; long correlation (>= 1 km) helps every
+  method.
 
 Measured by ``mlkm paper`` (100 datasets, ``results/paper/results.md``), mean accuracy at
 50 targets / 20 sensors: K-means++(P) 81.0 %, MLKM w/o EC 83.0 %, MLKM w/ EC 90.8 % (paper:
