@@ -88,10 +88,11 @@ def _bar_chart(path: Path, title: str, labels: list[str], stats: list[tuple[floa
         bars = ax.bar(x + (i - 1) * width, vals, width, label=name, color=color)
         ax.bar_label(bars, fmt='%.1f', fontsize=7, padding=1)
     ax.set_xticks(x, labels, fontsize=8)
-    ax.set_ylim(0, 108)
+    ax.set_ylim(0, 112)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc='lower right')
+    ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.12), ncol=3,
+              frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -108,6 +109,7 @@ def run(n_datasets: int = 100, out: str | Path = 'results/paper', jobs: int = 2,
     out.mkdir(parents=True, exist_ok=True)
     tasks = [Task('dnn', s, n) for n in DNN_SPLITS for s in range(dnn_datasets)]
     tasks += [Task(kind, s) for kind in ('sim2', 'sim1') for s in range(n_datasets)]
+    load_start = os.getloadavg()[0]
     start = time.perf_counter()
     parallel = Parallel(n_jobs=jobs, return_as='generator_unordered')
     rows: list[tuple[str, str, int, float, float]] = []
@@ -127,7 +129,8 @@ def run(n_datasets: int = 100, out: str | Path = 'results/paper', jobs: int = 2,
         return [r[3] for r in rows if r[0] == kind and r[1] == method]
 
     summary: dict = {'n_datasets': n_datasets, 'dnn_datasets': dnn_datasets,
-                     'segment_size': segment_size, 'wall_s': wall, 'jobs': jobs}
+                     'segment_size': segment_size, 'wall_s': wall, 'jobs': jobs,
+                     'load': (load_start, os.getloadavg()[0]), 'cpus': os.cpu_count()}
     for kind in ('sim1', 'sim2'):
         summary[kind] = {m: _stats(acc(kind, m)) for m, _ in KMEANS_METHODS}
     summary['fig8'] = {m: _stats(acc('sim2', m)) for m, _ in MLKM_METHODS}
@@ -189,7 +192,9 @@ def _markdown(s: dict) -> str:
         f'(MLPClassifier, full-batch Adam, learning rate {LEARNING_RATE}, at most {MAX_ITER} '
         'epochs; trained on the first sensors along the road, tested on the others). '
         f'MLKM segment size K = {s["segment_size"]}.',
-        f'Wall time: {s["wall_s"]:.0f} s with {s["jobs"]} worker process(es).',
+        f'Wall time: {s["wall_s"]:.0f} s with {s["jobs"]} worker process(es) on {s["cpus"]} '
+        f'CPUs (1-minute load average {s["load"][0]:.1f} at the start, {s["load"][1]:.1f} at '
+        'the end; the machine is shared).',
         '',
         'Default simulator (`mlkm_core.simulator.SimConfig`): road length '
         f'{sim.road_length:g} m, cruise speed N({sim.velocity_mean:g}, {sim.velocity_std:.2f}^2)'
