@@ -247,3 +247,26 @@ def test_recorder_refuses_bad_parameters_and_a_used_output(repo_root, ros_env, t
     for r in results:
         assert_clean_output(r.stdout + r.stderr)
     assert not (tmp_path / 'a').exists() and not (tmp_path / 'b').exists()
+
+
+def test_stop_takes_the_whole_backlog_of_a_recorder_that_fell_behind(
+        ros_process, rclpy_context, spin_until, tmp_path):
+    # A burst faster than the recorder can write: when the publisher has every message
+    # acknowledged, the recorder still holds a backlog; a SIGINT right then must keep it all.
+    node = Node('bagtest_burst', context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    pub = node.create_publisher(Detection, '/bagtest/burst', KEEP_ALL)
+    bag = tmp_path / 'burst'
+    recorder = ros_process('rosbag_mcap', 'bag_recorder', '--ros-args', '-p', f'output:={bag}',
+                           '-p', 'topics:=[/bagtest/burst]', '-p', 'discovery_period:=0.2')
+    assert spin_until(executor, lambda: pub.get_subscription_count() >= 1, 20.0), \
+        recorder.output()
+    burst = 12000
+    for i in range(burst):
+        pub.publish(make_detection(i))
+    assert pub.wait_for_all_acked()
+    assert recorder.stop() == 0, recorder.output()
+    assert_clean_output(recorder.output())
+    reader = BagReader(bag)
+    assert reader.complete and reader.readable_message_count == burst

@@ -75,6 +75,14 @@ class BagRecorder(Node):
         self._max_duration = declare_number(
             self, 'max_duration', 0.0,
             'Stop recording after this long [s]; 0 = until SIGINT or SIGTERM.', 0.0, 1e9)
+        self._stop_drain_timeout = declare_number(
+            self, 'stop_drain_timeout', 30.0,
+            'On stop, keep taking the messages already delivered until none arrives for '
+            'stop_idle seconds, but at most this long [s]; a second SIGINT/SIGTERM cuts it '
+            'short.', 0.0, 3600.0)
+        self._stop_idle = declare_number(
+            self, 'stop_idle', 0.5,
+            'On stop, the drain ends after this long without a new message [s].', 0.01, 60.0)
         compression = declare_string(
             self, 'compression', 'zstd', 'MCAP chunk compression: zstd, lz4 or none.')
         chunk_size = declare_number(
@@ -189,19 +197,39 @@ class BagRecorder(Node):
         elif self._max_duration > 0 and time.monotonic() - self._started >= self._max_duration:
             self.finished.set_result('max_duration')
 
-    def drain(self, timeout: float = 2.0) -> None:
-        """Take the messages already delivered to the subscriptions (context still valid)."""
+    def drain(self) -> None:
+        """Take the messages already delivered to the subscriptions (context still valid).
+
+        A recorder that fell behind a fast publisher still has a backlog when it is told to
+        stop; it is taken whole until the subscriptions stay idle for ``stop_idle`` seconds,
+        at most ``stop_drain_timeout``. A second SIGINT/SIGTERM ends the drain at once.
+        """
         for timer in (self._discovery_timer, self._stop_timer, self._flush_timer):
             if timer is not None:
                 timer.cancel()
         if not rclpy.ok():
             return
-        deadline = time.monotonic() + timeout
-        idle = 0
-        while idle < 3 and time.monotonic() < deadline:
+        first_signal = self._stop_signal
+        self._stop_signal = None
+        now = time.monotonic()
+        deadline = now + self._stop_drain_timeout
+        last_message = now
+        while now < deadline and now - last_message < self._stop_idle:
+            if self._stop_signal is not None:
+                self.get_logger().warning('second stop signal: closing the bag without '
+                                          'taking the remaining messages')
+                break
             before = self._writer.message_count
             rclpy.spin_once(self, timeout_sec=0.02)
-            idle = idle + 1 if self._writer.message_count == before else 0
+            now = time.monotonic()
+            if self._writer.message_count != before:
+                last_message = now
+        else:
+            if now >= deadline:
+                self.get_logger().warning(
+                    f'stop_drain_timeout ({self._stop_drain_timeout:g} s) reached while '
+                    'messages were still arriving; closing the bag')
+        self._stop_signal = first_signal
 
     def close(self) -> None:
         """Finish the bag and log where it is and how many messages each topic has."""
@@ -243,11 +271,11 @@ def main(args: list[str] | None = None) -> int:
         print(f'bag_recorder: recording failed: {exc}', file=sys.stderr)
         status = EXIT_REFUSED
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         try:
             node.drain()
         finally:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
             node.close()
             node.destroy_node()
             rclpy.try_shutdown()
