@@ -33,9 +33,7 @@ Markers (pytest.ini): ``ros`` (starts DDS participants), ``slow``.
 
 from __future__ import annotations
 
-import fcntl
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -47,8 +45,6 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 INSTALL = REPO_ROOT / 'ros2_ws' / 'install'
-DOMAIN_IDS = range(1, 101)
-LOCK_DIR = Path(os.environ.get('MLKM_DOMAIN_LOCK_DIR', '/tmp/mlkm-ros-domain-locks'))
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -81,24 +77,11 @@ def repo_root() -> Path:
 
 @pytest.fixture
 def ros_domain_id() -> Iterator[int]:
-    """A ROS_DOMAIN_ID that no other test, in this or another session, holds right now."""
-    LOCK_DIR.mkdir(parents=True, exist_ok=True)
-    ids = list(DOMAIN_IDS)
-    random.shuffle(ids)
-    for domain_id in ids:
-        fd = os.open(LOCK_DIR / f'{domain_id}.lock', os.O_CREAT | os.O_RDWR, 0o666)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            continue
-        try:
-            yield domain_id
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
-        return
-    pytest.fail(f'all ROS domain ids {DOMAIN_IDS.start}..{DOMAIN_IDS.stop - 1} are in use')
+    """A ROS_DOMAIN_ID that no other test, demo or session on this machine holds right now."""
+    from mlkm_assoc.graph import reserve_domain  # after the env.sh re-exec above
+
+    with reserve_domain() as domain_id:
+        yield domain_id
 
 
 @pytest.fixture

@@ -37,11 +37,8 @@ def executable(package: str, name: str) -> Path:
 
 
 @contextmanager
-def domain() -> Iterator[int]:
-    """The user's ROS_DOMAIN_ID if set, else a free one (1..100) held for the duration."""
-    if os.environ.get('ROS_DOMAIN_ID'):
-        yield int(os.environ['ROS_DOMAIN_ID'])
-        return
+def reserve_domain() -> Iterator[int]:
+    """A free ROS domain id (1..100), locked against every other holder on this machine."""
     LOCK_DIR.mkdir(parents=True, exist_ok=True)
     ids = list(range(1, 101))
     random.shuffle(ids)
@@ -59,6 +56,16 @@ def domain() -> Iterator[int]:
             os.close(fd)
         return
     raise RuntimeError('every ROS domain id 1..100 is in use on this machine')
+
+
+@contextmanager
+def domain() -> Iterator[int]:
+    """The user's ROS_DOMAIN_ID if set, else a free one (1..100) held for the duration."""
+    if os.environ.get('ROS_DOMAIN_ID'):
+        yield int(os.environ['ROS_DOMAIN_ID'])
+        return
+    with reserve_domain() as domain_id:
+        yield domain_id
 
 
 def graph_env(domain_id: int) -> dict[str, str]:
