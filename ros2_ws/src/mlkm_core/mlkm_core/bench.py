@@ -25,8 +25,10 @@ import datetime as dt
 import json
 import multiprocessing as mp
 import os
+import re
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -240,15 +242,25 @@ def _slope(x: list[float], y: list[float]) -> float | None:
 # ----------------------------------------------------------------------------- Stone Soup
 
 
+STONESOUP = 'stonesoup==1.9.1'  # the version the committed results/bench was measured with
+
+
 def ensure_stonesoup(log) -> bool:
     try:
         import stonesoup  # noqa: F401
         return True
     except ImportError:
         pass
-    log('installing stonesoup into this venv for the benchmark (not a node dependency)')
-    res = subprocess.run([sys.executable, '-m', 'pip', 'install', '--quiet', 'stonesoup'],
-                         capture_output=True, text=True)
+    log(f'installing {STONESOUP} into this venv for the benchmark (not a node dependency)')
+    # The project's pins constrain whatever Stone Soup pulls in, so the bench never moves a
+    # package the nodes use.
+    pins = Path(__file__).resolve().parents[4] / 'requirements.txt'
+    with tempfile.NamedTemporaryFile('w', suffix='.txt') as constraints:
+        if pins.is_file():  # pip constraints take no extras: 'pkg[extra]==v' -> 'pkg==v'
+            constraints.write(re.sub(r'\[[^\]]*\]', '', pins.read_text()))
+            constraints.flush()
+        res = subprocess.run([sys.executable, '-m', 'pip', 'install', '--quiet', STONESOUP,
+                              '-c', constraints.name], capture_output=True, text=True)
     if res.returncode != 0:
         log('stonesoup install failed: ' + res.stderr.strip()[-500:])
         return False
