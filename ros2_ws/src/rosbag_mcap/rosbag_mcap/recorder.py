@@ -247,6 +247,11 @@ def main(args: list[str] | None = None) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     # Our own SIGINT/SIGTERM handlers: rclpy's would shut the context down at once, before
     # the messages already delivered could be taken and the bag closed.
+    # The constructor already subscribes, so a publisher may see the recorder and stop it
+    # before the constructor returns: hold such a signal until the node can take it.
+    early: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, _frame: early.append(signum))
+    signal.signal(signal.SIGTERM, lambda signum, _frame: early.append(signum))
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     status = EXIT_OK
@@ -263,6 +268,8 @@ def main(args: list[str] | None = None) -> int:
         return status
     signal.signal(signal.SIGINT, node.request_stop)
     signal.signal(signal.SIGTERM, node.request_stop)
+    if early:
+        node.request_stop(early[0])
     try:
         rclpy.spin_until_future_complete(node, node.finished)
     except (KeyboardInterrupt, ExternalShutdownException):
