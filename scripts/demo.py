@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from mlkm_assoc.graph import Graph, ScoreCollector, domain, format_scores
+from mlkm_assoc.graph import Graph, ScoreCollector, domain, format_scores, start_association
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,19 +57,9 @@ def main(argv: list[str] | None = None) -> int:
         collector = ScoreCollector(domain_id)
         graph = Graph(domain_id, log_dir)
         try:
-            graph.start('association_node', 'mlkm_assoc', 'association_node',
-                        '--ros-args', '-p', f'method:={args.method}')
-            graph.start('scorer_node', 'mlkm_assoc', 'scorer_node')
-            graph.start('bag_recorder', 'rosbag_mcap', 'bag_recorder', *recorder_args(bag_dir))
-            node = collector.node
-            # Start the simulator once the scorer and the recorder see the tracks topic, so
-            # that no track update is published before its subscribers matched.
-            why = collector.spin_until(
-                lambda: (node.count_publishers('/mlkm/tracks') >= 1
-                         and node.count_subscribers('/mlkm/tracks') >= 2),
-                timeout=30.0, abort=graph.failed)
-            if why:
-                raise RuntimeError(f'graph did not come up: {why}')
+            start_association(graph, collector, args.method,
+                              ('bag_recorder', 'rosbag_mcap', 'bag_recorder',
+                               *recorder_args(bag_dir)))
             graph.start('sensor_sim', 'road_sensors', 'sensor_sim', '--ros-args',
                         '-p', f'episodes:={args.episodes}', '-p', f'seed:={args.seed}',
                         '-p', f'n_targets:={args.targets}', '-p', f'n_sensors:={args.sensors}',

@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from mlkm_assoc.graph import Graph, ScoreCollector, domain, format_scores
+from mlkm_assoc.graph import Graph, ScoreCollector, domain, format_scores, start_association
 
 #: Topics replayed: the sensors' side of the graph only.
 PLAY_REGEX = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detections)$'
@@ -77,16 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         collector = ScoreCollector(domain_id)
         graph = Graph(domain_id, log_dir)
         try:
-            graph.start('association_node', 'mlkm_assoc', 'association_node',
-                        '--ros-args', '-p', f'method:={method}')
-            graph.start('scorer_node', 'mlkm_assoc', 'scorer_node')
-            node = collector.node
-            why = collector.spin_until(
-                lambda: (node.count_publishers('/mlkm/tracks') >= 1
-                         and node.count_subscribers('/mlkm/tracks') >= 1),
-                timeout=30.0, abort=graph.failed)
-            if why:
-                raise RuntimeError(f'nodes did not come up: {why}')
+            start_association(graph, collector, method)
             # The player waits until every volatile topic it plays has a subscriber: the
             # association node subscribes to sensor topics as soon as they appear.
             graph.start('bag_player', 'rosbag_mcap', 'bag_player', '--ros-args',

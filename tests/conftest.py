@@ -128,19 +128,11 @@ class RosProcess:
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGINT the process group (as Ctrl-C would), then SIGTERM, then SIGKILL."""
-        for sig, grace in ((signal.SIGINT, timeout), (signal.SIGTERM, 3.0)):
-            if self.proc.poll() is not None:
-                break
-            _killpg(self.proc.pid, sig)
-            try:
-                self.proc.wait(grace)
-            except subprocess.TimeoutExpired:
-                pass
-        if self.proc.poll() is None:
-            _killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(5.0)
+        from mlkm_assoc.graph import stop_process_group  # after the env.sh re-exec above
+
+        status = stop_process_group(self.proc, timeout)
         _killpg(self.proc.pid, signal.SIGKILL)  # anything left over in the group
-        return self.proc.returncode
+        return status
 
 
 def _killpg(pgid: int, sig: int) -> None:

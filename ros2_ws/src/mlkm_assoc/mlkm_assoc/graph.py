@@ -113,18 +113,24 @@ class Proc:
 
     def stop(self, grace: float = 10.0) -> int:
         """SIGINT (as Ctrl-C), then SIGTERM, then SIGKILL, to the process group."""
-        for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 3.0)):
-            if self.proc.poll() is not None:
-                break
-            _killpg(self.proc.pid, sig)
-            try:
-                self.proc.wait(wait)
-            except subprocess.TimeoutExpired:
-                pass
-        if self.proc.poll() is None:
-            _killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(5.0)
-        return self.proc.returncode
+        return stop_process_group(self.proc, grace)
+
+
+def stop_process_group(proc: subprocess.Popen, grace: float = 10.0) -> int:
+    """Stop a process started in its own group: SIGINT (as Ctrl-C) and ``grace`` seconds,
+    then SIGTERM and 3 s, then SIGKILL. Returns its exit status."""
+    for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 3.0)):
+        if proc.poll() is not None:
+            break
+        _killpg(proc.pid, sig)
+        try:
+            proc.wait(wait)
+        except subprocess.TimeoutExpired:
+            pass
+    if proc.poll() is None:
+        _killpg(proc.pid, signal.SIGKILL)
+        proc.wait(5.0)
+    return proc.returncode
 
 
 def cpu_seconds(pid: int) -> float | None:
@@ -201,6 +207,25 @@ class Graph:
 
     def __exit__(self, *exc: object) -> None:
         self.stop_all()
+
+
+def start_association(graph: Graph, collector: ScoreCollector, method: str,
+                      *also: tuple[str, ...]) -> None:
+    """Start association_node and scorer_node, then ``also`` (each ``(name, package, exe,
+    *args)``), and wait until /mlkm/tracks is matched by the scorer and each of ``also``, so
+    that no track update is published before its subscribers are there."""
+    graph.start('association_node', 'mlkm_assoc', 'association_node',
+                '--ros-args', '-p', f'method:={method}')
+    graph.start('scorer_node', 'mlkm_assoc', 'scorer_node')
+    for spec in also:
+        graph.start(*spec)
+    node = collector.node
+    why = collector.spin_until(
+        lambda: (node.count_publishers('/mlkm/tracks') >= 1
+                 and node.count_subscribers('/mlkm/tracks') >= 1 + len(also)),
+        timeout=30.0, abort=graph.failed)
+    if why:
+        raise RuntimeError(f'graph did not come up: {why}')
 
 
 class ScoreCollector:
