@@ -18,10 +18,10 @@ demo: setup
 	@$(ENV) python scripts/demo.py
 
 test: setup
-	@$(ENV) ruff check . && python -m pytest tests
+	@$(ENV) ruff check . && ruff format --check . && python -m pytest tests
 
 lint: setup
-	@$(ENV) ruff check .
+	@$(ENV) ruff check . && ruff format --check .
 
 experiments: setup
 	@$(ENV) mlkm paper --out results/paper

@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from mlkm_assoc.graph import Graph, ScoreCollector, domain, format_scores, start_association
+from mlkm_experiments.launch import Graph, ScoreCollector, domain, format_scores, start_association
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,16 +31,25 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--method', default='mlkm', help='associator (mlkm)')
     p.add_argument('--targets', type=int, default=50, help='targets per episode (50)')
     p.add_argument('--sensors', type=int, default=20, help='sensors (20)')
-    p.add_argument('--bag-dir', type=Path, default=None,
-                   help='bag directory to write (default bags/demo_<UTC time>)')
+    p.add_argument(
+        '--bag-dir',
+        type=Path,
+        default=None,
+        help='bag directory to write (default bags/demo_<UTC time>)',
+    )
     p.add_argument('--timeout', type=float, default=100.0, help='give up after [s] (100)')
     return p.parse_args(argv)
 
 
 def recorder_args(bag_dir: Path) -> list[str]:
     """Record every topic of the graph but the ROS housekeeping ones."""
-    return ['--ros-args', '-p', f'output:={bag_dir}',
-            '-p', 'exclude_regex:=^/(rosout|parameter_events)$']
+    return [
+        '--ros-args',
+        '-p',
+        f'output:={bag_dir}',
+        '-p',
+        'exclude_regex:=^/(rosout|parameter_events)$',
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -57,17 +66,37 @@ def main(argv: list[str] | None = None) -> int:
         collector = ScoreCollector(domain_id)
         graph = Graph(domain_id, log_dir)
         try:
-            start_association(graph, collector, args.method,
-                              ('bag_recorder', 'rosbag_mcap', 'bag_recorder',
-                               *recorder_args(bag_dir)))
-            graph.start('sensor_sim', 'road_sensors', 'sensor_sim', '--ros-args',
-                        '-p', f'episodes:={args.episodes}', '-p', f'seed:={args.seed}',
-                        '-p', f'n_targets:={args.targets}', '-p', f'n_sensors:={args.sensors}',
-                        '-p', 'real_time_factor:=0.0',
-                        '-p', 'wait_for_subscribers:=2',  # association node + recorder
-                        '-p', 'wait_for_truth_subscribers:=2')  # scorer + recorder
-            why = collector.spin_until(lambda: len(collector.scores) >= args.episodes,
-                                       timeout=args.timeout, abort=graph.failed)
+            start_association(
+                graph,
+                collector,
+                args.method,
+                ('bag_recorder', 'rosbag_mcap', 'bag_recorder', *recorder_args(bag_dir)),
+            )
+            graph.start(
+                'sensor_sim',
+                'road_sensors',
+                'sensor_sim',
+                '--ros-args',
+                '-p',
+                f'episodes:={args.episodes}',
+                '-p',
+                f'seed:={args.seed}',
+                '-p',
+                f'n_targets:={args.targets}',
+                '-p',
+                f'n_sensors:={args.sensors}',
+                '-p',
+                'real_time_factor:=0.0',
+                '-p',
+                'wait_for_subscribers:=2',  # association node + recorder
+                '-p',
+                'wait_for_truth_subscribers:=2',
+            )  # scorer + recorder
+            why = collector.spin_until(
+                lambda: len(collector.scores) >= args.episodes,
+                timeout=args.timeout,
+                abort=graph.failed,
+            )
             if why:
                 raise RuntimeError(f'not every episode was scored: {why}')
             if graph.procs['sensor_sim'].wait(30.0) != 0:
@@ -77,12 +106,14 @@ def main(argv: list[str] | None = None) -> int:
             # with SIGINT so that it closes the bag cleanly.
             collector.spin_until(lambda: False, timeout=0.3)
             if not graph.procs['bag_recorder'].wait_idle(timeout=60.0):
-                print('demo: the recorder stayed busy for 60 s; stopping it anyway',
-                      file=sys.stderr)
+                print(
+                    'demo: the recorder stayed busy for 60 s; stopping it anyway', file=sys.stderr
+                )
             code = graph.stop('bag_recorder', grace=20.0)
             if code != 0:
-                raise RuntimeError(f'bag_recorder exited with {code}; log '
-                                   f'{graph.procs["bag_recorder"].log_path}')
+                raise RuntimeError(
+                    f'bag_recorder exited with {code}; log {graph.procs["bag_recorder"].log_path}'
+                )
         except (RuntimeError, KeyboardInterrupt) as exc:
             graph.stop_all()
             collector.close()
@@ -93,8 +124,13 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         codes = graph.stop_all()
         collector.close()
-    print(format_scores(collector.scores, f'\nlive association ({args.method}), '
-                                          f'{args.targets} targets x {args.sensors} sensors:'))
+    print(
+        format_scores(
+            collector.scores,
+            f'\nlive association ({args.method}), '
+            f'{args.targets} targets x {args.sensors} sensors:',
+        )
+    )
     print(f'bag: {bag_dir}  (replay: make replay BAG={_rel(bag_dir)})')
     print(f'demo: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0

@@ -64,8 +64,10 @@ def main(argv: list[str]) -> int:
         if new != text:
             path.write_text(new)
             changed += 1
-    print(f'fix_cmake_paths: {changed} file(s) updated under {prefix} '
-          f'(python include {py_include}, numpy include {np_include})')
+    print(
+        f'fix_cmake_paths: {changed} file(s) updated under {prefix} '
+        f'(python include {py_include}, numpy include {np_include})'
+    )
     return 0
 
 

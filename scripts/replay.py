@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from mlkm_assoc.graph import Graph, ScoreCollector, domain, format_scores, start_association
+from mlkm_experiments.launch import Graph, ScoreCollector, domain, format_scores, start_association
 
 #: Topics replayed: the sensors' side of the graph only.
 PLAY_REGEX = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detections)$'
@@ -27,8 +27,8 @@ PLAY_REGEX = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detectio
 def recorded_episodes(bag: Path) -> tuple[int, dict[int, float]]:
     """(number of ENDED episodes, {episode: recorded accuracy}) read from the bag."""
     from rclpy.serialization import deserialize_message
-    from road_sensor_msgs.msg import AssociationScore, EpisodeInfo
 
+    from road_sensor_msgs.msg import AssociationScore, EpisodeInfo
     from rosbag_mcap.storage import BagReader
 
     reader = BagReader(bag)
@@ -48,11 +48,17 @@ def recorded_episodes(bag: Path) -> tuple[int, dict[int, float]]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     p.add_argument('bag', type=Path, help='bag directory (or a lone .mcap file)')
-    p.add_argument('--method', default=None,
-                   help='associator (default: the one that produced the recorded scores, '
-                        'else mlkm)')
-    p.add_argument('--rate', type=float, default=0.0,
-                   help='playback rate; 0 = as fast as the nodes take it (default)')
+    p.add_argument(
+        '--method',
+        default=None,
+        help='associator (default: the one that produced the recorded scores, else mlkm)',
+    )
+    p.add_argument(
+        '--rate',
+        type=float,
+        default=0.0,
+        help='playback rate; 0 = as fast as the nodes take it (default)',
+    )
     p.add_argument('--timeout', type=float, default=120.0, help='give up after [s] (120)')
     args = p.parse_args(argv)
     bag = args.bag.resolve()
@@ -65,29 +71,45 @@ def main(argv: list[str] | None = None) -> int:
         print(f'replay: cannot read {bag}: {exc}', file=sys.stderr)
         return 1
     if episodes == 0:
-        print(f'replay: {bag} holds no complete episode (no ENDED on /road/episode)',
-              file=sys.stderr)
+        print(
+            f'replay: {bag} holds no complete episode (no ENDED on /road/episode)', file=sys.stderr
+        )
         return 1
     method = args.method or _recorded_method(bag) or 'mlkm'
     log_dir = Path(tempfile.mkdtemp(prefix='mlkm_replay_'))
     t0 = time.monotonic()
     with domain() as domain_id:
-        print(f'replay: {bag} ({episodes} episodes), method {method}, '
-              f'ROS_DOMAIN_ID={domain_id}; logs in {log_dir}')
+        print(
+            f'replay: {bag} ({episodes} episodes), method {method}, '
+            f'ROS_DOMAIN_ID={domain_id}; logs in {log_dir}'
+        )
         collector = ScoreCollector(domain_id)
         graph = Graph(domain_id, log_dir)
         try:
             start_association(graph, collector, method)
             # The player waits until every volatile topic it plays has a subscriber: the
             # association node subscribes to sensor topics as soon as they appear.
-            graph.start('bag_player', 'rosbag_mcap', 'bag_player', '--ros-args',
-                        '-p', f'bag:={bag}', '-p', f'rate:={args.rate}',
-                        '-p', f'include_regex:={PLAY_REGEX}',
-                        '-p', 'wait_for_subscribers:=1', '-p', 'linger:=-1.0')
-            why = collector.spin_until(lambda: len(collector.scores) >= episodes,
-                                       timeout=args.timeout,
-                                       abort=lambda: graph.failed(ignore=('bag_player',))
-                                       or _player_failed(graph))
+            graph.start(
+                'bag_player',
+                'rosbag_mcap',
+                'bag_player',
+                '--ros-args',
+                '-p',
+                f'bag:={bag}',
+                '-p',
+                f'rate:={args.rate}',
+                '-p',
+                f'include_regex:={PLAY_REGEX}',
+                '-p',
+                'wait_for_subscribers:=1',
+                '-p',
+                'linger:=-1.0',
+            )
+            why = collector.spin_until(
+                lambda: len(collector.scores) >= episodes,
+                timeout=args.timeout,
+                abort=lambda: graph.failed(ignore=('bag_player',)) or _player_failed(graph),
+            )
             if why:
                 raise RuntimeError(f'not every episode was scored: {why}')
         except (RuntimeError, KeyboardInterrupt) as exc:
@@ -102,11 +124,20 @@ def main(argv: list[str] | None = None) -> int:
         collector.close()
     print(format_scores(collector.scores, f'\nreplayed association ({method}):'))
     if recorded:
-        same = all(abs(collector.scores[e].accuracy - a) < 1e-12
-                   for e, a in recorded.items() if e in collector.scores)
-        print('recorded run: ' + ('same accuracy per episode' if same else
-                                  'DIFFERENT accuracy: ' + ', '.join(
-                                      f'{e}: {a:.4f}' for e, a in sorted(recorded.items()))))
+        same = all(
+            abs(collector.scores[e].accuracy - a) < 1e-12
+            for e, a in recorded.items()
+            if e in collector.scores
+        )
+        print(
+            'recorded run: '
+            + (
+                'same accuracy per episode'
+                if same
+                else 'DIFFERENT accuracy: '
+                + ', '.join(f'{e}: {a:.4f}' for e, a in sorted(recorded.items()))
+            )
+        )
     print(f'replay: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
 
@@ -120,8 +151,8 @@ def _player_failed(graph: Graph) -> str | None:
 
 def _recorded_method(bag: Path) -> str | None:
     from rclpy.serialization import deserialize_message
-    from road_sensor_msgs.msg import AssociationScore
 
+    from road_sensor_msgs.msg import AssociationScore
     from rosbag_mcap.storage import BagReader
 
     for message in BagReader(bag).messages(topics=['/mlkm/score']):

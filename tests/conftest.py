@@ -49,15 +49,20 @@ INSTALL = REPO_ROOT / 'ros2_ws' / 'install'
 
 def pytest_configure(config: pytest.Config) -> None:
     """Restart this pytest under ``source env.sh`` when the environment is missing (once)."""
-    if (os.environ.get('MLKM_ROOT') or os.environ.get('MLKM_TEST_NO_REEXEC')
-            or os.environ.get('PYTEST_XDIST_WORKER')):
+    if (
+        os.environ.get('MLKM_ROOT')
+        or os.environ.get('MLKM_TEST_NO_REEXEC')
+        or os.environ.get('PYTEST_XDIST_WORKER')
+    ):
         return
     script = f'source {REPO_ROOT / "env.sh"} >/dev/null && env -0'
     try:
         out = subprocess.run(['bash', '-c', script], check=True, capture_output=True).stdout
     except subprocess.CalledProcessError as exc:
-        sys.stderr.write(f'conftest: sourcing env.sh failed: {exc.stderr.decode()}\n'
-                         'run `make setup`, then `source env.sh`\n')
+        sys.stderr.write(
+            f'conftest: sourcing env.sh failed: {exc.stderr.decode()}\n'
+            'run `make setup`, then `source env.sh`\n'
+        )
         return
     env = dict(item.split('=', 1) for item in out.decode().split('\0') if '=' in item)
     env['MLKM_TEST_NO_REEXEC'] = '1'
@@ -78,7 +83,7 @@ def repo_root() -> Path:
 @pytest.fixture
 def ros_domain_id() -> Iterator[int]:
     """A ROS_DOMAIN_ID that no other test, demo or session on this machine holds right now."""
-    from mlkm_assoc.graph import reserve_domain  # after the env.sh re-exec above
+    from mlkm_experiments.launch import reserve_domain  # after the env.sh re-exec above
 
     with reserve_domain() as domain_id:
         yield domain_id
@@ -128,7 +133,7 @@ class RosProcess:
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGINT the process group (as Ctrl-C would), then SIGTERM, then SIGKILL."""
-        from mlkm_assoc.graph import stop_process_group  # after the env.sh re-exec above
+        from mlkm_experiments.launch import stop_process_group  # after the env.sh re-exec above
 
         status = stop_process_group(self.proc, timeout)
         _killpg(self.proc.pid, signal.SIGKILL)  # anything left over in the group
@@ -147,8 +152,10 @@ def executable_path(package: str, executable: str) -> Path:
     path = INSTALL / package / 'lib' / package / executable
     if not os.access(path, os.X_OK):
         have = sorted(p.name for p in path.parent.glob('*')) if path.parent.is_dir() else []
-        pytest.fail(f'no executable {executable!r} in package {package!r} ({path}); '
-                    f'installed: {have or "nothing (run make setup)"}')
+        pytest.fail(
+            f'no executable {executable!r} in package {package!r} ({path}); '
+            f'installed: {have or "nothing (run make setup)"}'
+        )
     return path
 
 
@@ -156,17 +163,25 @@ def executable_path(package: str, executable: str) -> Path:
 def ros_process(ros_env: dict[str, str], tmp_path: Path) -> Iterator[Callable[..., RosProcess]]:
     started: list[RosProcess] = []
 
-    def start(package: str, executable: str, *args: str, env: dict[str, str] | None = None,
-              **popen_kwargs) -> RosProcess:
+    def start(
+        package: str,
+        executable: str,
+        *args: str,
+        env: dict[str, str] | None = None,
+        **popen_kwargs,
+    ) -> RosProcess:
         path = executable_path(package, executable)
         log_path = tmp_path / f'{executable}-{len(started)}.log'
         log = open(log_path, 'wb')  # noqa: SIM115 - closed right after Popen has it
-        kwargs = dict(stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-                      cwd=tmp_path)
+        kwargs = dict(stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, cwd=tmp_path)
         kwargs.update(popen_kwargs)
         try:
-            proc = subprocess.Popen([str(path), *map(str, args)], env={**ros_env, **(env or {})},
-                                    start_new_session=True, **kwargs)
+            proc = subprocess.Popen(
+                [str(path), *map(str, args)],
+                env={**ros_env, **(env or {})},
+                start_new_session=True,
+                **kwargs,
+            )
         finally:
             log.close()
         rp = RosProcess(proc, log_path, f'{package}/{executable}')
@@ -191,8 +206,9 @@ def rclpy_context(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setenv('ROS_DOMAIN_ID', str(ros_domain_id))
     monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=ros_domain_id,
-               signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(
+        context=ctx, domain_id=ros_domain_id, signal_handler_options=SignalHandlerOptions.NO
+    )
     try:
         yield ctx
     finally:

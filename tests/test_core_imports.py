@@ -30,8 +30,12 @@ print(json.dumps({'modules': names, 'loaded': sorted(sys.modules)}))
 
 def is_ros(module: str) -> bool:
     top = module.split('.')[0]
-    return (top in {'rclpy', 'rosidl_runtime_py', 'rosidl_parser', 'builtin_interfaces'}
-            or top.endswith('_msgs') or top.endswith('_interfaces') or top.startswith('rcl'))
+    return (
+        top in {'rclpy', 'rosidl_runtime_py', 'rosidl_parser', 'builtin_interfaces'}
+        or top.endswith('_msgs')
+        or top.endswith('_interfaces')
+        or top.startswith('rcl')
+    )
 
 
 def test_is_ros_recognises_ros_modules():
@@ -41,8 +45,12 @@ def test_is_ros_recognises_ros_modules():
 
 
 def test_importing_every_core_module_loads_no_ros():
-    out = subprocess.run([sys.executable, '-c', PROBE, str(CORE_SRC.parent)],
-                         capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, '-c', PROBE, str(CORE_SRC.parent)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 0, f'importing the core failed:\n{out.stderr[-3000:]}'
     report = json.loads(out.stdout.strip().splitlines()[-1])
     assert 'mlkm_core.types' in report['modules'], report['modules']
@@ -64,8 +72,12 @@ def ros_imports(source: str, filename: str) -> list[str]:
         found += [f'{node.lineno}: {n}' for n in names if is_ros(n)]
     if 'importlib' in source:  # dynamic imports of ROS modules by name
         for node in ast.walk(ast.parse(source, filename)):
-            if isinstance(node, ast.Constant) and isinstance(node.value, str) \
-                    and is_ros(node.value) and node.value.replace('.', '').isidentifier():
+            if (
+                isinstance(node, ast.Constant)
+                and isinstance(node.value, str)
+                and is_ros(node.value)
+                and node.value.replace('.', '').isidentifier()
+            ):
                 found.append(f'{node.lineno}: {node.value!r}')
     return found
 
@@ -78,6 +90,9 @@ def test_scanner_finds_ros_imports():
 def test_core_source_has_no_ros_import():
     files = sorted(CORE_SRC.rglob('*.py'))
     assert files, CORE_SRC
-    offenders = {str(f.relative_to(CORE_SRC)): hits for f in files
-                 if (hits := ros_imports(f.read_text(), str(f)))}
+    offenders = {
+        str(f.relative_to(CORE_SRC)): hits
+        for f in files
+        if (hits := ros_imports(f.read_text(), str(f)))
+    }
     assert not offenders, f'mlkm_core imports ROS: {offenders}'

@@ -17,8 +17,15 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Header
 
-MESSAGES = ('Detection', 'SensorLayout', 'EpisodeInfo', 'GroundTruth', 'Track', 'TrackArray',
-            'AssociationScore')
+MESSAGES = (
+    'Detection',
+    'SensorLayout',
+    'EpisodeInfo',
+    'GroundTruth',
+    'Track',
+    'TrackArray',
+    'AssociationScore',
+)
 U32_MAX = 2**32 - 1
 
 
@@ -47,27 +54,64 @@ def filled(name: str):
     if name == 'Detection':
         return cls(header=header(), sensor_id=42, position=1234.5, velocity=-13.75)
     if name == 'SensorLayout':
-        return cls(header=header(frame='road_é'), road_length=5000.0, sensor_ids=[1, 5, U32_MAX],
-                   sensor_names=['s01', 'bridge_north', ''], positions=[10.0, 2500.25, 4999.5])
+        return cls(
+            header=header(frame='road_é'),
+            road_length=5000.0,
+            sensor_ids=[1, 5, U32_MAX],
+            sensor_names=['s01', 'bridge_north', ''],
+            positions=[10.0, 2500.25, 4999.5],
+        )
     if name == 'EpisodeInfo':
-        return cls(header=header(), episode_id=7, status=cls.STATUS_ENDED, num_targets=50,
-                   start=Time(sec=100, nanosec=5), end=Time(sec=2_000, nanosec=6),
-                   sensor_ids=[1, 2, 3], detection_counts=[50, 49, 52])
+        return cls(
+            header=header(),
+            episode_id=7,
+            status=cls.STATUS_ENDED,
+            num_targets=50,
+            start=Time(sec=100, nanosec=5),
+            end=Time(sec=2_000, nanosec=6),
+            sensor_ids=[1, 2, 3],
+            detection_counts=[50, 49, 52],
+        )
     if name == 'GroundTruth':
-        return cls(header=header(), episode_id=3, sensor_id=9, target_id=cls.FALSE_ALARM,
-                   false_alarm=True, true_velocity=55.5)
+        return cls(
+            header=header(),
+            episode_id=3,
+            sensor_id=9,
+            target_id=cls.FALSE_ALARM,
+            false_alarm=True,
+            true_velocity=55.5,
+        )
     if name == 'Track':
         return track(17)
     if name == 'TrackArray':
-        return cls(header=header(), episode_id=11, method='mlkm', final=True, segments_done=4,
-                   segments_total=4, tracks=[track(0), track(U32_MAX)],
-                   unassigned_sensor_ids=[8, 9], unassigned_stamps=[Time(sec=1), Time(sec=2)],
-                   unassigned_velocities=[33.0, 70.5], solve_time=0.0125)
+        return cls(
+            header=header(),
+            episode_id=11,
+            method='mlkm',
+            final=True,
+            segments_done=4,
+            segments_total=4,
+            tracks=[track(0), track(U32_MAX)],
+            unassigned_sensor_ids=[8, 9],
+            unassigned_stamps=[Time(sec=1), Time(sec=2)],
+            unassigned_velocities=[33.0, 70.5],
+            solve_time=0.0125,
+        )
     if name == 'AssociationScore':
-        return cls(header=header(), episode_id=5, method='kmeans++', accuracy=0.9165,
-                   correct=917, total=1000, link_recall=0.875, link_precision=0.5,
-                   identity_switches=12, adjusted_rand_index=-0.25, mean_accuracy=0.8125,
-                   episodes_scored=6)
+        return cls(
+            header=header(),
+            episode_id=5,
+            method='kmeans++',
+            accuracy=0.9165,
+            correct=917,
+            total=1000,
+            link_recall=0.875,
+            link_precision=0.5,
+            identity_switches=12,
+            adjusted_rand_index=-0.25,
+            mean_accuracy=0.8125,
+            episodes_scored=6,
+        )
     raise KeyError(name)
 
 
@@ -118,8 +162,12 @@ def test_round_trip(name):
 
 def test_round_trip_keeps_extreme_values():
     Detection = msg_class('Detection')
-    msg = Detection(header=header(sec=-(2**31), nanosec=999_999_999), sensor_id=U32_MAX,
-                    position=math.ulp(0.0), velocity=-1.7976931348623157e308)
+    msg = Detection(
+        header=header(sec=-(2**31), nanosec=999_999_999),
+        sensor_id=U32_MAX,
+        position=math.ulp(0.0),
+        velocity=-1.7976931348623157e308,
+    )
     back = deserialize_message(serialize_message(msg), Detection)
     assert (back.header.stamp.sec, back.header.stamp.nanosec) == (-(2**31), 999_999_999)
     assert back.sensor_id == U32_MAX
@@ -133,7 +181,6 @@ def test_constants():
     assert (EpisodeInfo.STATUS_STARTED, EpisodeInfo.STATUS_ENDED) == (0, 1)
 
 
-
 def test_track_array_travels_over_loopback_dds(rclpy_context, spin_until):
     """The built messages work end to end: publish and receive one on a private domain."""
     from rclpy.executors import SingleThreadedExecutor
@@ -141,8 +188,11 @@ def test_track_array_travels_over_loopback_dds(rclpy_context, spin_until):
     from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 
     TrackArray = msg_class('TrackArray')
-    qos = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
+    qos = QoSProfile(
+        depth=1,
+        reliability=QoSReliabilityPolicy.RELIABLE,
+        durability=QoSDurabilityPolicy.TRANSIENT_LOCAL,
+    )
     pub_node = Node('msg_test_pub', context=rclpy_context)
     sub_node = Node('msg_test_sub', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)

@@ -18,19 +18,21 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from road_sensor_msgs.msg import Detection
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
 
+from road_sensor_msgs.msg import Detection
 from rosbag_mcap.storage import BagReader, BagWriter
 
 pytestmark = pytest.mark.ros
 
 N = 40  # messages per volatile topic
-KEEP_ALL = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=0,
-                      reliability=ReliabilityPolicy.RELIABLE)
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+KEEP_ALL = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL, depth=0, reliability=ReliabilityPolicy.RELIABLE
+)
+LATCHED = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
 
 
 def make_detection(i: int) -> Detection:
@@ -44,9 +46,14 @@ def make_detection(i: int) -> Detection:
 def make_diagnostics(i: int) -> DiagnosticArray:
     msg = DiagnosticArray()
     msg.header.frame_id = f'diag{i}'
-    msg.status = [DiagnosticStatus(level=DiagnosticStatus.WARN, name='assoc',
-                                   message=f'rejected {i}',
-                                   values=[KeyValue(key='nan_velocity', value=str(i))])]
+    msg.status = [
+        DiagnosticStatus(
+            level=DiagnosticStatus.WARN,
+            name='assoc',
+            message=f'rejected {i}',
+            values=[KeyValue(key='nan_velocity', value=str(i))],
+        )
+    ]
     return msg
 
 
@@ -72,12 +79,22 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
     pubs = {topic: node.create_publisher(t, topic, KEEP_ALL) for topic, (t, _) in TOPICS.items()}
 
     bag = tmp_path / 'roundtrip'
-    recorder = ros_process('rosbag_mcap', 'bag_recorder', '--ros-args',
-                           '-p', f'output:={bag}', '-p', 'include_regex:=^/bagtest/',
-                           '-p', 'discovery_period:=0.2')
-    assert spin_until(executor, lambda: all(p.get_subscription_count() >= 1
-                                            for p in [latched_pub, *pubs.values()]), 20.0), \
-        recorder.output()
+    recorder = ros_process(
+        'rosbag_mcap',
+        'bag_recorder',
+        '--ros-args',
+        '-p',
+        f'output:={bag}',
+        '-p',
+        'include_regex:=^/bagtest/',
+        '-p',
+        'discovery_period:=0.2',
+    )
+    assert spin_until(
+        executor,
+        lambda: all(p.get_subscription_count() >= 1 for p in [latched_pub, *pubs.values()]),
+        20.0,
+    ), recorder.output()
     sent = {topic: [] for topic in TOPICS}
     for i in range(N):
         for topic, (_, make) in TOPICS.items():
@@ -96,21 +113,24 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
 
     def same_messages(raw_by_topic: dict) -> bool:
         """The raw CDR payloads decode (with rclpy) to exactly the messages sent, in order."""
-        return {t: [deserialize_message(r, types[t]) for r in raws]
-                for t, raws in raw_by_topic.items()} == sent
+        return {
+            t: [deserialize_message(r, types[t]) for r in raws] for t, raws in raw_by_topic.items()
+        } == sent
 
     # Independent decode 1: rosbags on the bag directory (checks type hashes too).
     with AnyReader([bag]) as reader:
         by_topic = {}
         for connection, _, raw in reader.messages():
             by_topic.setdefault(connection.topic, []).append(
-                (bytes(raw), reader.deserialize(raw, connection.msgtype)))
+                (bytes(raw), reader.deserialize(raw, connection.msgtype))
+            )
         qos = {c.topic: c.ext.offered_qos_profiles[0] for c in reader.connections}
     recorded = {t: [r for r, _ in v] for t, v in by_topic.items()}
     assert same_messages(recorded)
     assert [m.data for _, m in by_topic['/bagtest/chatter']] == [f'hello {i}' for i in range(N)]
     assert [(m.header.stamp.sec, m.velocity) for _, m in by_topic['/bagtest/detections']] == [
-        (1000 + i, 20.0 + 0.25 * i) for i in range(N)]
+        (1000 + i, 20.0 + 0.25 * i) for i in range(N)
+    ]
     assert by_topic['/bagtest/diagnostics'][3][1].status[0].values[0].value == '3'
     assert by_topic[LATCHED_TOPIC][0][1].data == LATCHED_MSG.data
     assert qos[LATCHED_TOPIC].durability.name == 'TRANSIENT_LOCAL'
@@ -123,7 +143,8 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
             decoded.setdefault(channel.topic, []).append((message.data, ros_msg))
     assert {t: [r for r, _ in v] for t, v in decoded.items()} == recorded
     assert [m.velocity for _, m in decoded['/bagtest/detections']] == [
-        20.0 + 0.25 * i for i in range(N)]
+        20.0 + 0.25 * i for i in range(N)
+    ]
     assert decoded['/bagtest/diagnostics'][-1][1].status[0].message == f'rejected {N - 1}'
 
     # Replay into raw subscribers: every message, in order, byte for byte.
@@ -133,10 +154,20 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
     received = {topic: [] for topic in TOPICS}
     for topic, (msg_type, _) in TOPICS.items():
         node.create_subscription(msg_type, topic, received[topic].append, KEEP_ALL, raw=True)
-    player = ros_process('rosbag_mcap', 'bag_player', '--ros-args', '-p', f'bag:={bag}',
-                         '-p', 'wait_for_subscribers:=1', '-p', 'linger:=20.0')
-    assert spin_until(executor, lambda: all(len(v) >= N for v in received.values()), 30.0), \
+    player = ros_process(
+        'rosbag_mcap',
+        'bag_player',
+        '--ros-args',
+        '-p',
+        f'bag:={bag}',
+        '-p',
+        'wait_for_subscribers:=1',
+        '-p',
+        'linger:=20.0',
+    )
+    assert spin_until(executor, lambda: all(len(v) >= N for v in received.values()), 30.0), (
         player.output()
+    )
     assert received == {topic: recorded[topic] for topic in TOPICS}  # byte for byte
     late = []
     node.create_subscription(String, LATCHED_TOPIC, late.append, LATCHED, raw=True)
@@ -149,17 +180,27 @@ def test_record_decode_and_replay_round_trip(ros_process, rclpy_context, spin_un
 
 
 def test_sigterm_closes_the_recording_and_truncated_bag_plays_its_readable_part(
-        ros_process, rclpy_context, spin_until, tmp_path, repo_root):
+    ros_process, rclpy_context, spin_until, tmp_path, repo_root
+):
     node = Node('bagtest_source', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     pub = node.create_publisher(String, '/bagtest/chatter', KEEP_ALL)
     bag = tmp_path / 'stopped'
-    recorder = ros_process('rosbag_mcap', 'bag_recorder', '--ros-args', '-p', f'output:={bag}',
-                           '-p', 'topics:=[/bagtest/chatter]', '-p', 'chunk_size:=1024',
-                           '-p', 'discovery_period:=0.2')
-    assert spin_until(executor, lambda: pub.get_subscription_count() >= 1, 20.0), \
-        recorder.output()
+    recorder = ros_process(
+        'rosbag_mcap',
+        'bag_recorder',
+        '--ros-args',
+        '-p',
+        f'output:={bag}',
+        '-p',
+        'topics:=[/bagtest/chatter]',
+        '-p',
+        'chunk_size:=1024',
+        '-p',
+        'discovery_period:=0.2',
+    )
+    assert spin_until(executor, lambda: pub.get_subscription_count() >= 1, 20.0), recorder.output()
     for i in range(200):
         pub.publish(String(data=f'message {i:03d} ' + 'x' * 40))
     assert pub.wait_for_all_acked()
@@ -185,9 +226,21 @@ def test_sigterm_closes_the_recording_and_truncated_bag_plays_its_readable_part(
     # Also: the installed defaults file and a ROS remap rule are honoured.
     node.create_subscription(String, '/bagtest/renamed', received.append, KEEP_ALL)
     params = repo_root / 'ros2_ws/src/rosbag_mcap/config/bag_player.param.yaml'
-    player = ros_process('rosbag_mcap', 'bag_player', '--ros-args', '--params-file', params,
-                         '-p', f'bag:={cut}', '-p', 'rate:=0.0', '-p', 'wait_for_subscribers:=1',
-                         '-r', '/bagtest/chatter:=/bagtest/renamed')
+    player = ros_process(
+        'rosbag_mcap',
+        'bag_player',
+        '--ros-args',
+        '--params-file',
+        params,
+        '-p',
+        f'bag:={cut}',
+        '-p',
+        'rate:=0.0',
+        '-p',
+        'wait_for_subscribers:=1',
+        '-r',
+        '/bagtest/chatter:=/bagtest/renamed',
+    )
     assert spin_until(executor, lambda: len(received) >= readable, 30.0), player.output()
     assert player.proc.wait(20.0) == 3, player.output()
     out = player.output()
@@ -202,8 +255,13 @@ def installed(repo_root: Path, executable: str) -> Path:
 
 
 def run_player(repo_root: Path, ros_env: dict, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([str(installed(repo_root, 'bag_player')), '--ros-args', *args],
-                          env=ros_env, capture_output=True, text=True, timeout=30)
+    return subprocess.run(
+        [str(installed(repo_root, 'bag_player')), '--ros-args', *args],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
 
 
 def test_player_refuses_bad_input_with_a_reason(repo_root, ros_env, tmp_path):
@@ -230,8 +288,16 @@ def test_recorder_refuses_bad_parameters_and_a_used_output(repo_root, ros_env, t
     results = []
 
     def run(*args: str) -> subprocess.CompletedProcess:
-        results.append(subprocess.run([str(exe), '--ros-args', *args], env=ros_env,
-                                      capture_output=True, text=True, timeout=30, cwd=tmp_path))
+        results.append(
+            subprocess.run(
+                [str(exe), '--ros-args', *args],
+                env=ros_env,
+                capture_output=True,
+                text=True,
+                timeout=30,
+                cwd=tmp_path,
+            )
+        )
         return results[-1]
 
     result = run('-p', 'discovery_period:=0.0', '-p', f'output:={tmp_path / "a"}')
@@ -250,7 +316,8 @@ def test_recorder_refuses_bad_parameters_and_a_used_output(repo_root, ros_env, t
 
 
 def test_stop_takes_the_whole_backlog_of_a_recorder_that_fell_behind(
-        ros_process, rclpy_context, spin_until, tmp_path):
+    ros_process, rclpy_context, spin_until, tmp_path
+):
     # A burst faster than the recorder can write: when the publisher has every message
     # acknowledged, the recorder still holds a backlog; a SIGINT right then must keep it all.
     node = Node('bagtest_burst', context=rclpy_context)
@@ -258,10 +325,18 @@ def test_stop_takes_the_whole_backlog_of_a_recorder_that_fell_behind(
     executor.add_node(node)
     pub = node.create_publisher(Detection, '/bagtest/burst', KEEP_ALL)
     bag = tmp_path / 'burst'
-    recorder = ros_process('rosbag_mcap', 'bag_recorder', '--ros-args', '-p', f'output:={bag}',
-                           '-p', 'topics:=[/bagtest/burst]', '-p', 'discovery_period:=0.2')
-    assert spin_until(executor, lambda: pub.get_subscription_count() >= 1, 20.0), \
-        recorder.output()
+    recorder = ros_process(
+        'rosbag_mcap',
+        'bag_recorder',
+        '--ros-args',
+        '-p',
+        f'output:={bag}',
+        '-p',
+        'topics:=[/bagtest/burst]',
+        '-p',
+        'discovery_period:=0.2',
+    )
+    assert spin_until(executor, lambda: pub.get_subscription_count() >= 1, 20.0), recorder.output()
     burst = 12000
     for i in range(burst):
         pub.publish(make_detection(i))

@@ -17,8 +17,7 @@ from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout
 
 NEW = ('assignment', 'mlkm_robust', 'multiframe')
-CLUTTER = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2,
-               velocity_noise=0.5)
+CLUTTER = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2, velocity_noise=0.5)
 
 # Three constant-speed targets on four sensors; D (80 m/s) overtakes A (50 m/s) between the
 # first and the second sensor, so the order of passage differs between sensors.
@@ -26,8 +25,9 @@ POS = np.array([100.0, 200.0, 300.0, 350.0])
 TARGETS = {0: (50.0, 0.0), 1: (40.0, 1.0), 2: (80.0, 1.0)}  # id: (speed, entry time)
 
 
-def hand_made(drop: tuple[int, int] | None = None, false_alarm: tuple[int, float] | None = None
-              ) -> tuple[Layout, Detections]:
+def hand_made(
+    drop: tuple[int, int] | None = None, false_alarm: tuple[int, float] | None = None
+) -> tuple[Layout, Detections]:
     si, st, sv, tg = [], [], [], []
     for s, x in enumerate(POS):
         for k, (v, t0) in TARGETS.items():
@@ -43,8 +43,9 @@ def hand_made(drop: tuple[int, int] | None = None, false_alarm: tuple[int, float
             sv.append(45.0)
             tg.append(-1)
     order = np.argsort(st, kind='stable')  # scrambled: by time, not by sensor
-    d = Detections(np.array(si)[order], np.array(st)[order], np.array(sv)[order],
-                   np.array(tg)[order])
+    d = Detections(
+        np.array(si)[order], np.array(st)[order], np.array(sv)[order], np.array(tg)[order]
+    )
     return Layout(400.0, POS), d
 
 
@@ -143,10 +144,10 @@ def test_match_sparse_with_dummies_hand_computed():
 
 
 def test_gate_pairs_window():
-    r, c = gate_pairs(np.array([1.0, 5.0]), np.array([0.5, 2.0]),
-                      np.array([4.0, 1.2, 9.0, 6.5, 0.6]))
-    assert sorted(zip(r.tolist(), c.tolist(), strict=True)) == [(0, 1), (0, 4), (1, 0),
-                                                                (1, 3)]
+    r, c = gate_pairs(
+        np.array([1.0, 5.0]), np.array([0.5, 2.0]), np.array([4.0, 1.2, 9.0, 6.5, 0.6])
+    )
+    assert sorted(zip(r.tolist(), c.tolist(), strict=True)) == [(0, 1), (0, 4), (1, 0), (1, 3)]
 
 
 def test_relabel_prunes_single_detection_tracks():

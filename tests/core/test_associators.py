@@ -8,14 +8,26 @@ from mlkm_core.associators.dnn import dnn_split
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
 
-CASES = [(SimConfig(n_targets=20, n_sensors=12), 5),
-         (SimConfig(n_targets=15, n_sensors=11, miss_probability=0.1, false_alarm_rate=0.05,
-                    stamp_noise=0.2, velocity_noise=0.5), 4)]
+CASES = [
+    (SimConfig(n_targets=20, n_sensors=12), 5),
+    (
+        SimConfig(
+            n_targets=15,
+            n_sensors=11,
+            miss_probability=0.1,
+            false_alarm_rate=0.05,
+            stamp_noise=0.2,
+            velocity_noise=0.5,
+        ),
+        4,
+    ),
+]
 
 
 def test_paper_methods_are_registered():
-    assert {'kmeans_up', 'kmeans_p', 'kmeans_pp_up', 'kmeans_pp', 'mlkm',
-            'mlkm_no_ec'} <= set(available_methods())
+    assert {'kmeans_up', 'kmeans_p', 'kmeans_pp_up', 'kmeans_pp', 'mlkm', 'mlkm_no_ec'} <= set(
+        available_methods()
+    )
 
 
 @pytest.mark.parametrize('method', available_methods())
@@ -46,7 +58,8 @@ def test_preprocessing_helps_kmeans_pp_on_seeded_data():
         ds = simulate(SimConfig(n_targets=10, n_sensors=10), seed)
         for name, out in (('kmeans_pp_up', up), ('kmeans_pp', p)):
             lab = make_associator(name, AssociatorConfig(seed=seed)).associate(
-                ds.layout, ds.detections, ds.n_targets)
+                ds.layout, ds.detections, ds.n_targets
+            )
             out.append(accuracy(lab, ds.detections.target).accuracy)
     assert np.mean(p) > np.mean(up)
 

@@ -67,8 +67,9 @@ def test_correction_of_the_last_sensor_uses_the_previous_one():
     stamp = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0])
     velocity = np.full(6, 50.0)
     labels = np.array([0, 1, 0, 1, 1, 1])
-    fixed = correct_errors(positions, sensor, stamp, velocity, labels,
-                           detect_errors(sensor, stamp, labels).flagged)
+    fixed = correct_errors(
+        positions, sensor, stamp, velocity, labels, detect_errors(sensor, stamp, labels).flagged
+    )
     assert fixed.tolist() == [0, 1, 0, 1, 0, 1]
 
 
@@ -120,7 +121,8 @@ def test_error_correction_helps_on_seeded_data():
         ds = simulate(SimConfig(), seed)
         for m in acc:
             lab = make_associator(m, AssociatorConfig(seed=seed)).associate(
-                ds.layout, ds.detections, ds.n_targets)
+                ds.layout, ds.detections, ds.n_targets
+            )
             acc[m].append(accuracy(lab, ds.detections.target).accuracy)
     mean = {m: np.mean(v) for m, v in acc.items()}
     assert mean['mlkm'] > mean['mlkm_no_ec'] + 0.03
@@ -132,6 +134,7 @@ def test_mlkm_survives_clutter_and_short_last_segment():
     cfg = SimConfig(n_targets=30, n_sensors=13, miss_probability=0.1, false_alarm_rate=0.05)
     ds = simulate(cfg, 2)
     labels = make_associator('mlkm', AssociatorConfig(segment_size=5)).associate(
-        ds.layout, ds.detections, ds.n_targets)
+        ds.layout, ds.detections, ds.n_targets
+    )
     assert labels.shape == (len(ds.detections),) and labels.min() >= 0
     assert accuracy(labels, ds.detections.target).accuracy > 0.6

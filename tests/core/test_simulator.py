@@ -97,8 +97,9 @@ def test_miss_and_false_alarm_rates_within_statistical_bounds():
 
 def test_measurement_noise_has_the_configured_std():
     clean = simulate(SimConfig(n_targets=300, n_sensors=30), 4).detections
-    noisy = simulate(SimConfig(n_targets=300, n_sensors=30, stamp_noise=0.2,
-                               velocity_noise=0.5), 4).detections
+    noisy = simulate(
+        SimConfig(n_targets=300, n_sensors=30, stamp_noise=0.2, velocity_noise=0.5), 4
+    ).detections
 
     def aligned(d):
         o = np.lexsort((d.target, d.sensor_index))
@@ -117,12 +118,18 @@ def test_episodes_share_layout_and_do_not_overlap():
     for a, b in zip(eps, eps[1:]):
         assert b.layout is eps[0].layout
         assert time_window(b)[0] == pytest.approx(time_window(a)[1] + 5.0)
-    assert not np.array_equal(np.diff(eps[1].detections.stamp),
-                              np.diff(eps[2].detections.stamp))
+    assert not np.array_equal(np.diff(eps[1].detections.stamp), np.diff(eps[2].detections.stamp))
 
 
-@pytest.mark.parametrize('bad', [dict(road_length=0), dict(miss_probability=1.0),
-                                 dict(false_alarm_rate=-1), dict(start_increment_min=40)])
+@pytest.mark.parametrize(
+    'bad',
+    [
+        dict(road_length=0),
+        dict(miss_probability=1.0),
+        dict(false_alarm_rate=-1),
+        dict(start_increment_min=40),
+    ],
+)
 def test_invalid_config_rejected(bad):
     with pytest.raises(ValueError):
         SimConfig(**bad)

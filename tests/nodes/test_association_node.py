@@ -16,14 +16,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
 
 from mlkm_assoc.association_node import AssociationNode
 from mlkm_core.associators.base import available_methods
 from mlkm_core.types import Layout
-from road_sensors import conversions as conv
-from road_sensors import qos
-from road_sensors.params import ParameterError
+from mlkm_ros import conversions as conv
+from mlkm_ros import qos
+from mlkm_ros.params import ParameterError
+from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
 
 pytestmark = pytest.mark.ros
 
@@ -48,8 +48,10 @@ class Harness:
     """A test node with publishers for layout, episodes and each sensor; collects outputs."""
 
     def __init__(self, context, spin_until, **params) -> None:
-        overrides = [Parameter('diagnostics_period', value=0.2),
-                     Parameter('completion_timeout', value=1.0)]
+        overrides = [
+            Parameter('diagnostics_period', value=0.2),
+            Parameter('completion_timeout', value=1.0),
+        ]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
         self.node = AssociationNode(context=context, parameter_overrides=overrides)
         self.test = Node('association_test', context=context)
@@ -57,18 +59,24 @@ class Harness:
         self.executor.add_node(self.node)
         self.executor.add_node(self.test)
         self.spin_until = spin_until
-        self.layout_pub = self.test.create_publisher(SensorLayout, qos.LAYOUT_TOPIC,
-                                                     qos.LAYOUT_QOS)
-        self.episode_pub = self.test.create_publisher(EpisodeInfo, qos.EPISODE_TOPIC,
-                                                      qos.EPISODE_QOS)
-        self.det_pubs = [self.test.create_publisher(Detection, qos.detections_topic(n),
-                                                    qos.DETECTIONS_QOS) for n in NAMES]
+        self.layout_pub = self.test.create_publisher(
+            SensorLayout, qos.LAYOUT_TOPIC, qos.LAYOUT_QOS
+        )
+        self.episode_pub = self.test.create_publisher(
+            EpisodeInfo, qos.EPISODE_TOPIC, qos.EPISODE_QOS
+        )
+        self.det_pubs = [
+            self.test.create_publisher(Detection, qos.detections_topic(n), qos.DETECTIONS_QOS)
+            for n in NAMES
+        ]
         self.tracks: list[TrackArray] = []
         self.diag: dict[str, str] = {}
-        self.test.create_subscription(TrackArray, qos.TRACKS_TOPIC, self.tracks.append,
-                                      qos.TRACKS_QOS)
-        self.test.create_subscription(DiagnosticArray, qos.DIAGNOSTICS_TOPIC, self._on_diag,
-                                      qos.DIAGNOSTICS_QOS)
+        self.test.create_subscription(
+            TrackArray, qos.TRACKS_TOPIC, self.tracks.append, qos.TRACKS_QOS
+        )
+        self.test.create_subscription(
+            DiagnosticArray, qos.DIAGNOSTICS_TOPIC, self._on_diag, qos.DIAGNOSTICS_QOS
+        )
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         values = conv.diagnostics_values(msg, self.node.get_fully_qualified_name())
@@ -81,11 +89,23 @@ class Harness:
     def wait_matched(self) -> None:
         self.wait(lambda: all(p.get_subscription_count() >= 1 for p in self.det_pubs))
 
-    def detect(self, s: int, stamp_ns: int, velocity: float, *, sensor_id: int | None = None,
-               position: float | None = None) -> None:
-        self.det_pubs[s].publish(conv.detection_to_msg(
-            IDS[s] if sensor_id is None else sensor_id, stamp_ns,
-            POS[s] if position is None else position, velocity))
+    def detect(
+        self,
+        s: int,
+        stamp_ns: int,
+        velocity: float,
+        *,
+        sensor_id: int | None = None,
+        position: float | None = None,
+    ) -> None:
+        self.det_pubs[s].publish(
+            conv.detection_to_msg(
+                IDS[s] if sensor_id is None else sensor_id,
+                stamp_ns,
+                POS[s] if position is None else position,
+                velocity,
+            )
+        )
 
     def finals(self) -> dict[int, TrackArray]:
         return {m.episode_id: m for m in self.tracks if m.final}
@@ -164,8 +184,16 @@ def test_known_association_with_every_bad_input(harness) -> None:
 
     d = h.diag
     assert d['received'] == str(len(valid) + 9)
-    for reason in ('nan_velocity', 'inf_velocity', 'zero_velocity', 'negative_velocity',
-                   'position_mismatch', 'unknown_sensor', 'duplicate', 'outside_episode'):
+    for reason in (
+        'nan_velocity',
+        'inf_velocity',
+        'zero_velocity',
+        'negative_velocity',
+        'position_mismatch',
+        'unknown_sensor',
+        'duplicate',
+        'outside_episode',
+    ):
         assert d[f'rejected.{reason}'] == '1', reason
     assert d['rejected'] == '8'
     assert d['handled.before_layout'] == '1'
@@ -189,8 +217,7 @@ def test_known_association_with_every_bad_input(harness) -> None:
     second = passages(1000.0)
     for s, ns, v, _ in sorted(second, key=lambda p: p[1]):
         h.detect(s, ns, v)
-    h.episode_pub.publish(conv.episode_ended_msg(1, 3, start1, end1, 0,
-                                                 {i: 3 for i in IDS}))
+    h.episode_pub.publish(conv.episode_ended_msg(1, 3, start1, end1, 0, {i: 3 for i in IDS}))
     h.wait(lambda: 1 in h.finals())
     got = keyed(h.finals()[1])
     assert set(got) == {(IDS[s], ns) for s, ns, _, _ in second}
@@ -223,11 +250,13 @@ def test_partial_tracks_segment_by_segment_with_stable_ids(harness) -> None:
 
 def test_invalid_parameters_refused(rclpy_context) -> None:
     with pytest.raises(ParameterError, match='unknown method .nope.; choose one of'):
-        AssociationNode(context=rclpy_context,
-                        parameter_overrides=[Parameter('method', value='nope')])
+        AssociationNode(
+            context=rclpy_context, parameter_overrides=[Parameter('method', value='nope')]
+        )
     with pytest.raises(ParameterError, match='segment_size'):
-        AssociationNode(context=rclpy_context,
-                        parameter_overrides=[Parameter('segment_size', value=0)])
+        AssociationNode(
+            context=rclpy_context, parameter_overrides=[Parameter('segment_size', value=0)]
+        )
     node = AssociationNode(context=rclpy_context)
     try:
         result = node.set_parameters([Parameter('method', value='nope')])[0]
@@ -237,17 +266,23 @@ def test_invalid_parameters_refused(rclpy_context) -> None:
         for method in available_methods():  # every registered associator is accepted
             assert node.set_parameters([Parameter('method', value=method)])[0].successful
         assert node.config.method == available_methods()[-1]
-        assert not node.set_parameters(
-            [Parameter('completion_timeout', value=-1.0)])[0].successful
+        assert not node.set_parameters([Parameter('completion_timeout', value=-1.0)])[0].successful
     finally:
         node.destroy_node()
 
 
 def test_remaps_are_honoured(rclpy_context, spin_until) -> None:
     """-r remaps the layout and a sensor topic; the node listens where it is told."""
-    node = AssociationNode(context=rclpy_context, cli_args=[
-        '--ros-args', '-r', '/road/sensor_layout:=/elsewhere/layout',
-        '-r', f'/road/sensors/{NAMES[0]}/detections:=/elsewhere/a'])
+    node = AssociationNode(
+        context=rclpy_context,
+        cli_args=[
+            '--ros-args',
+            '-r',
+            '/road/sensor_layout:=/elsewhere/layout',
+            '-r',
+            f'/road/sensors/{NAMES[0]}/detections:=/elsewhere/a',
+        ],
+    )
     test = Node('remap_test', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
@@ -271,8 +306,10 @@ def test_new_layout_moves_the_subscriptions(harness) -> None:
     h.layout_pub.publish(conv.layout_to_msg(LAYOUT, 0))
     h.wait_matched()
     other = Layout(900.0, np.array([300.0, 600.0]), np.array([7, 8]), ('s_x', 's_y'))
-    pubs = [h.test.create_publisher(Detection, qos.detections_topic(n), qos.DETECTIONS_QOS)
-            for n in other.names]
+    pubs = [
+        h.test.create_publisher(Detection, qos.detections_topic(n), qos.DETECTIONS_QOS)
+        for n in other.names
+    ]
     h.layout_pub.publish(conv.layout_to_msg(other, 0))
     h.wait(lambda: all(p.get_subscription_count() == 1 for p in pubs))
     h.wait(lambda: all(p.get_subscription_count() == 0 for p in h.det_pubs))

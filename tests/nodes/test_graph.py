@@ -11,15 +11,15 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from road_sensor_msgs.msg import AssociationScore, TrackArray
 
-from mlkm_assoc.graph import wait_idle
 from mlkm_core.associators.base import AssociatorConfig, make_associator
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate_episodes
 from mlkm_core.types import Detections
-from road_sensors import conversions as conv
-from road_sensors import qos
+from mlkm_experiments.launch import wait_idle
+from mlkm_ros import conversions as conv
+from mlkm_ros import qos
+from road_sensor_msgs.msg import AssociationScore, TrackArray
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -27,16 +27,22 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 REPLAYED = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detections)$'
 
 
-def offline_accuracies(config: SimConfig, seed: int, episodes: int, gap: float,
-                       method: str) -> list[float]:
+def offline_accuracies(
+    config: SimConfig, seed: int, episodes: int, gap: float, method: str
+) -> list[float]:
     """The offline core on the same datasets (stamps as the graph carries them: whole ns)."""
     out = []
     for ds in simulate_episodes(config, seed, episodes, gap):
         d = ds.detections
-        same = Detections(d.sensor_index, conv.ns_to_seconds(conv.seconds_to_ns_array(d.stamp)),
-                          d.velocity, d.target)
-        labels = make_associator(method, AssociatorConfig()).associate(ds.layout, same,
-                                                                       ds.n_targets)
+        same = Detections(
+            d.sensor_index,
+            conv.ns_to_seconds(conv.seconds_to_ns_array(d.stamp)),
+            d.velocity,
+            d.target,
+        )
+        labels = make_associator(method, AssociatorConfig()).associate(
+            ds.layout, same, ds.n_targets
+        )
         out.append(accuracy(labels, same.target).accuracy)
     return out
 
@@ -49,13 +55,18 @@ class Listener:
         self.scores: dict[int, AssociationScore] = {}
         self.finals: dict[int, TrackArray] = {}
         self.diag: dict[str, str] = {}
-        self.node.create_subscription(AssociationScore, qos.SCORE_TOPIC,
-                                      lambda m: self.scores.__setitem__(m.episode_id, m),
-                                      qos.SCORE_QOS)
-        self.node.create_subscription(TrackArray, qos.TRACKS_TOPIC, self._on_tracks,
-                                      qos.TRACKS_QOS)
-        self.node.create_subscription(DiagnosticArray, qos.DIAGNOSTICS_TOPIC, self._on_diag,
-                                      qos.DIAGNOSTICS_QOS)
+        self.node.create_subscription(
+            AssociationScore,
+            qos.SCORE_TOPIC,
+            lambda m: self.scores.__setitem__(m.episode_id, m),
+            qos.SCORE_QOS,
+        )
+        self.node.create_subscription(
+            TrackArray, qos.TRACKS_TOPIC, self._on_tracks, qos.TRACKS_QOS
+        )
+        self.node.create_subscription(
+            DiagnosticArray, qos.DIAGNOSTICS_TOPIC, self._on_diag, qos.DIAGNOSTICS_QOS
+        )
 
     def _on_tracks(self, msg: TrackArray) -> None:
         if msg.final:
@@ -67,8 +78,10 @@ class Listener:
             self.diag = values
 
     def tracks_matched(self, subscribers: int) -> bool:
-        return (self.node.count_publishers('/mlkm/tracks') >= 1
-                and self.node.count_subscribers('/mlkm/tracks') >= subscribers)
+        return (
+            self.node.count_publishers('/mlkm/tracks') >= 1
+            and self.node.count_subscribers('/mlkm/tracks') >= subscribers
+        )
 
     def close(self) -> None:
         self.executor.shutdown()
@@ -82,22 +95,41 @@ def listener(rclpy_context):
     lst.close()
 
 
-def test_live_equals_offline_and_replay_equals_live(ros_process, listener, spin_until,
-                                                    tmp_path) -> None:
+def test_live_equals_offline_and_replay_equals_live(
+    ros_process, listener, spin_until, tmp_path
+) -> None:
     """Same seed and method: live accuracy == offline core accuracy on the same datasets;
     the recorded bag replayed into fresh nodes gives the same accuracy again."""
     episodes, seed = 3, 7
     bag = tmp_path / 'live_bag'
     assoc = ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=mlkm')
     scorer = ros_process('mlkm_assoc', 'scorer_node')
-    recorder = ros_process('rosbag_mcap', 'bag_recorder', '--ros-args', '-p', f'output:={bag}',
-                           '-p', 'exclude_regex:=^/(rosout|parameter_events)$')
+    recorder = ros_process(
+        'rosbag_mcap',
+        'bag_recorder',
+        '--ros-args',
+        '-p',
+        f'output:={bag}',
+        '-p',
+        'exclude_regex:=^/(rosout|parameter_events)$',
+    )
     assert spin_until(listener.executor, lambda: listener.tracks_matched(3), 30.0)
-    sim = ros_process('road_sensors', 'sensor_sim', '--ros-args', '-p', f'episodes:={episodes}',
-                      '-p', f'seed:={seed}', '-p', 'wait_for_subscribers:=2',
-                      '-p', 'wait_for_truth_subscribers:=2')
-    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), \
+    sim = ros_process(
+        'road_sensors',
+        'sensor_sim',
+        '--ros-args',
+        '-p',
+        f'episodes:={episodes}',
+        '-p',
+        f'seed:={seed}',
+        '-p',
+        'wait_for_subscribers:=2',
+        '-p',
+        'wait_for_truth_subscribers:=2',
+    )
+    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), (
         sim.output() + assoc.output() + scorer.output()
+    )
     assert sim.proc.wait(30) == 0
     live = [listener.scores[e].accuracy for e in range(episodes)]
     assert live == offline_accuracies(SimConfig(), seed, episodes, 10.0, 'mlkm')
@@ -117,11 +149,24 @@ def test_live_equals_offline_and_replay_equals_live(ros_process, listener, spin_
     ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=mlkm')
     ros_process('mlkm_assoc', 'scorer_node')
     assert spin_until(listener.executor, lambda: listener.tracks_matched(2), 30.0)
-    player = ros_process('rosbag_mcap', 'bag_player', '--ros-args', '-p', f'bag:={bag}',
-                         '-p', 'rate:=0.0', '-p', f'include_regex:={REPLAYED}',
-                         '-p', 'wait_for_subscribers:=1', '-p', 'linger:=-1.0')
-    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), \
+    player = ros_process(
+        'rosbag_mcap',
+        'bag_player',
+        '--ros-args',
+        '-p',
+        f'bag:={bag}',
+        '-p',
+        'rate:=0.0',
+        '-p',
+        f'include_regex:={REPLAYED}',
+        '-p',
+        'wait_for_subscribers:=1',
+        '-p',
+        'linger:=-1.0',
+    )
+    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), (
         player.output()
+    )
     assert [listener.scores[e].accuracy for e in range(episodes)] == live
     assert all(listener.scores[e].total == 1000 for e in range(episodes))
 
@@ -129,14 +174,34 @@ def test_live_equals_offline_and_replay_equals_live(ros_process, listener, spin_
 def test_nothing_lost_under_load(ros_process, listener, spin_until) -> None:
     """rtf 0, 200 targets on 40 sensors: every published detection reaches the node."""
     episodes = 2
-    ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=kmeans_pp',
-                '-p', 'diagnostics_period:=0.5')
+    ros_process(
+        'mlkm_assoc',
+        'association_node',
+        '--ros-args',
+        '-p',
+        'method:=kmeans_pp',
+        '-p',
+        'diagnostics_period:=0.5',
+    )
     assert spin_until(listener.executor, lambda: listener.tracks_matched(1), 30.0)
-    sim = ros_process('road_sensors', 'sensor_sim', '--ros-args', '-p', f'episodes:={episodes}',
-                      '-p', 'n_targets:=200', '-p', 'n_sensors:=40',
-                      '-p', 'real_time_factor:=0.0', '-p', 'wait_for_subscribers:=1')
-    assert spin_until(listener.executor, lambda: len(listener.finals) >= episodes, 120.0), \
+    sim = ros_process(
+        'road_sensors',
+        'sensor_sim',
+        '--ros-args',
+        '-p',
+        f'episodes:={episodes}',
+        '-p',
+        'n_targets:=200',
+        '-p',
+        'n_sensors:=40',
+        '-p',
+        'real_time_factor:=0.0',
+        '-p',
+        'wait_for_subscribers:=1',
+    )
+    assert spin_until(listener.executor, lambda: len(listener.finals) >= episodes, 120.0), (
         sim.output()
+    )
     assert sim.proc.wait(30) == 0
     published = 200 * 40
     assert f'published {published * episodes} detections' in sim.output()
@@ -144,21 +209,26 @@ def test_nothing_lost_under_load(ros_process, listener, spin_until) -> None:
         final = listener.finals[e]
         total = sum(len(t.sensor_ids) for t in final.tracks) + len(final.unassigned_sensor_ids)
         assert total == published
-    assert spin_until(listener.executor,
-                      lambda: listener.diag.get('episodes_published') == str(episodes), 10.0)
+    assert spin_until(
+        listener.executor, lambda: listener.diag.get('episodes_published') == str(episodes), 10.0
+    )
     assert listener.diag['received'] == str(published * episodes)
     assert listener.diag['rejected'] == '0'
 
 
-@pytest.mark.parametrize('package,exe,param,reason', [
-    ('mlkm_assoc', 'association_node', 'method:=nope', 'choose one of'),
-    ('mlkm_assoc', 'association_node', 'segment_size:=0', 'out of range'),
-    ('road_sensors', 'sensor_sim', 'n_targets:=0', 'out of range'),
-    ('road_sensors', 'sensor_sim', 'miss_probability:=1.0', 'miss_probability must be in'),
-    ('mlkm_assoc', 'scorer_node', 'truth_timeout:=-1.0', 'out of range'),
-])
-def test_invalid_parameter_refused_on_command_line(ros_process, package, exe, param,
-                                                   reason) -> None:
+@pytest.mark.parametrize(
+    'package,exe,param,reason',
+    [
+        ('mlkm_assoc', 'association_node', 'method:=nope', 'choose one of'),
+        ('mlkm_assoc', 'association_node', 'segment_size:=0', 'out of range'),
+        ('road_sensors', 'sensor_sim', 'n_targets:=0', 'out of range'),
+        ('road_sensors', 'sensor_sim', 'miss_probability:=1.0', 'miss_probability must be in'),
+        ('mlkm_assoc', 'scorer_node', 'truth_timeout:=-1.0', 'out of range'),
+    ],
+)
+def test_invalid_parameter_refused_on_command_line(
+    ros_process, package, exe, param, reason
+) -> None:
     proc = ros_process(package, exe, '--ros-args', '-p', param)
     assert proc.proc.wait(30) == 2
     assert reason in proc.output()
@@ -168,16 +238,28 @@ def test_clutter_live_equals_offline(ros_process, listener, spin_until) -> None:
     """Misses, false alarms and noise: sensors with more detections than targets complete
     early, the late ones make the node re-associate the episode; still live == offline."""
     episodes, seed, method = 2, 5, 'mlkm_robust'
-    clutter = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2,
-                   velocity_noise=0.5)
+    clutter = dict(
+        miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2, velocity_noise=0.5
+    )
     ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', f'method:={method}')
     ros_process('mlkm_assoc', 'scorer_node')
     assert spin_until(listener.executor, lambda: listener.tracks_matched(2), 30.0)
     args = [a for k, v in clutter.items() for a in ('-p', f'{k}:={v}')]
-    sim = ros_process('road_sensors', 'sensor_sim', '--ros-args', '-p', f'episodes:={episodes}',
-                      '-p', f'seed:={seed}', '-p', 'wait_for_truth_subscribers:=1', *args)
-    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), \
+    sim = ros_process(
+        'road_sensors',
+        'sensor_sim',
+        '--ros-args',
+        '-p',
+        f'episodes:={episodes}',
+        '-p',
+        f'seed:={seed}',
+        '-p',
+        'wait_for_truth_subscribers:=1',
+        *args,
+    )
+    assert spin_until(listener.executor, lambda: len(listener.scores) >= episodes, 90.0), (
         sim.output()
+    )
     datasets = simulate_episodes(SimConfig(**clutter), seed, episodes, 10.0)
     for e, ds in enumerate(datasets):
         final = listener.finals[e]
@@ -189,10 +271,12 @@ def test_clutter_live_equals_offline(ros_process, listener, spin_until) -> None:
 
 def test_invalid_value_in_params_file_refused(ros_process, tmp_path) -> None:
     params = tmp_path / 'bad.param.yaml'
-    params.write_text('association_node:\n  ros__parameters:\n    method: nope\n'
-                      '    segment_size: 3\n')
-    proc = ros_process('mlkm_assoc', 'association_node', '--ros-args',
-                       '--params-file', str(params))
+    params.write_text(
+        'association_node:\n  ros__parameters:\n    method: nope\n    segment_size: 3\n'
+    )
+    proc = ros_process(
+        'mlkm_assoc', 'association_node', '--ros-args', '--params-file', str(params)
+    )
     assert proc.proc.wait(30) == 2
     out = proc.output()
     assert "unknown method 'nope'; choose one of" in out and 'mlkm' in out

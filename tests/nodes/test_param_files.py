@@ -12,11 +12,14 @@ from mlkm_assoc import association_node, scorer_node
 from road_sensors import sensor_sim
 
 
-@pytest.mark.parametrize('package,node,specs', [
-    ('road_sensors', 'sensor_sim', sensor_sim._sim_specs() + sensor_sim._NODE_SPECS),
-    ('mlkm_assoc', 'association_node', association_node.SPECS),
-    ('mlkm_assoc', 'scorer_node', scorer_node.SPECS),
-])
+@pytest.mark.parametrize(
+    'package,node,specs',
+    [
+        ('road_sensors', 'sensor_sim', sensor_sim._sim_specs() + sensor_sim._NODE_SPECS),
+        ('mlkm_assoc', 'association_node', association_node.SPECS),
+        ('mlkm_assoc', 'scorer_node', scorer_node.SPECS),
+    ],
+)
 def test_param_file_matches_declared_defaults(package, node, specs) -> None:
     path = Path(get_package_share_directory(package)) / 'config' / f'{node}.param.yaml'
     params = yaml.safe_load(path.read_text())[node]['ros__parameters']

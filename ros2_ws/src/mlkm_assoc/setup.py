@@ -23,7 +23,7 @@ setup(
         'console_scripts': [
             'association_node = mlkm_assoc.association_node:main',
             'scorer_node = mlkm_assoc.scorer_node:main',
-            'mlkm = mlkm_core.cli:main',
+            'mlkm = mlkm_assoc.cli:main',
         ],
     },
 )

@@ -17,7 +17,7 @@ setup(
     zip_safe=True,
     maintainer='mlkm team',
     maintainer_email='dev@example.com',
-    description='Simulated road-side sensors; shared QoS profiles and message conversions.',
+    description='Simulated road-side sensors (sensor_sim).',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

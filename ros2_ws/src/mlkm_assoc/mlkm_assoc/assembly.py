@@ -44,13 +44,23 @@ from mlkm_core.types import Layout, segments
 
 #: Reasons a detection is rejected (not associated).
 REJECT_REASONS = (
-    'nan_velocity', 'inf_velocity', 'zero_velocity', 'negative_velocity', 'unknown_sensor',
-    'position_mismatch', 'duplicate', 'outside_episode', 'after_episode_final',
+    'nan_velocity',
+    'inf_velocity',
+    'zero_velocity',
+    'negative_velocity',
+    'unknown_sensor',
+    'position_mismatch',
+    'duplicate',
+    'outside_episode',
+    'after_episode_final',
     'buffer_full',
 )
 #: Irregular inputs that are kept and associated, counted by reason.
 HANDLED_REASONS = (
-    'before_layout', 'out_of_order', 'excess_at_sensor', 'late_for_segment',
+    'before_layout',
+    'out_of_order',
+    'excess_at_sensor',
+    'late_for_segment',
     'completion_timeout',
 )
 #: Tolerance between a detection's position and its sensor's layout position [m].
@@ -101,8 +111,15 @@ class Job:
 class _Episode:
     """Buffers and progress of one episode."""
 
-    def __init__(self, episode_id: int, num_targets: int, start_ns: int, end_ns: int,
-                 layout: Layout, config: AssociationConfig) -> None:
+    def __init__(
+        self,
+        episode_id: int,
+        num_targets: int,
+        start_ns: int,
+        end_ns: int,
+        layout: Layout,
+        config: AssociationConfig,
+    ) -> None:
         n = layout.n_sensors
         self.id = episode_id
         self.num_targets = num_targets
@@ -142,8 +159,11 @@ class _Episode:
             idx.extend([s] * len(st))
             ns.extend(st[i] for i in order)
             vel.extend(vl[i] for i in order)
-        return Part(np.asarray(idx, dtype=np.int64), np.asarray(ns, dtype=np.int64),
-                    np.asarray(vel, dtype=float))
+        return Part(
+            np.asarray(idx, dtype=np.int64),
+            np.asarray(ns, dtype=np.int64),
+            np.asarray(vel, dtype=float),
+        )
 
 
 Raw = tuple[int, int, float, float, float]  # sensor id, stamp [ns], position, velocity, t_rx
@@ -152,8 +172,12 @@ Raw = tuple[int, int, float, float, float]  # sensor id, stamp [ns], position, v
 class Assembler:
     """Episode and segment bookkeeping; emits :class:`Job` s through ``submit``."""
 
-    def __init__(self, config: AssociationConfig, submit: Callable[[Job], None],
-                 on_reject: Callable[[str, str], None] | None = None) -> None:
+    def __init__(
+        self,
+        config: AssociationConfig,
+        submit: Callable[[Job], None],
+        on_reject: Callable[[str, str], None] | None = None,
+    ) -> None:
         self.config = config
         self._submit = submit
         self._on_reject = on_reject
@@ -200,8 +224,15 @@ class Assembler:
             self._place(*raw)
         return True
 
-    def add_episode(self, episode_id: int, num_targets: int, start_ns: int, end_ns: int,
-                    ended_counts: dict[int, int] | None, now: float) -> None:
+    def add_episode(
+        self,
+        episode_id: int,
+        num_targets: int,
+        start_ns: int,
+        end_ns: int,
+        ended_counts: dict[int, int] | None,
+        now: float,
+    ) -> None:
         """An EpisodeInfo: STARTED (``ended_counts`` None) or ENDED (with the counts)."""
         if episode_id not in self._infos:
             self._infos[episode_id] = (num_targets, start_ns, end_ns)
@@ -226,8 +257,9 @@ class Assembler:
         for raw in held:
             self._place(*raw)
 
-    def add_detection(self, sensor_id: int, stamp_ns: int, position: float, velocity: float,
-                      now: float) -> None:
+    def add_detection(
+        self, sensor_id: int, stamp_ns: int, position: float, velocity: float, now: float
+    ) -> None:
         """One received Detection message. Cheap: no numpy, a few dict/list operations."""
         self.received += 1
         if self.first_rx is None:
@@ -253,20 +285,25 @@ class Assembler:
                 else:
                     keep.append(raw)
             self._pending_episode = keep
-        open_eps = sorted((ep for ep in self._episodes.values() if not ep.finalized),
-                          key=lambda e: e.id)
+        open_eps = sorted(
+            (ep for ep in self._episodes.values() if not ep.finalized), key=lambda e: e.id
+        )
         for i, ep in enumerate(open_eps):
-            later_active = any(o.last_activity > 0 for o in open_eps[i + 1:])
-            if ((ep.ended is not None or later_active) and ep.last_activity > 0
-                    and now - ep.last_activity > timeout):
+            later_active = any(o.last_activity > 0 for o in open_eps[i + 1 :])
+            if (
+                (ep.ended is not None or later_active)
+                and ep.last_activity > 0
+                and now - ep.last_activity > timeout
+            ):
                 self.handled['completion_timeout'] += 1
                 self._force(ep, now)
 
     # --- state for diagnostics ------------------------------------------------------------
     def buffer_sizes(self) -> dict[str, int]:
         return {
-            'buffered_open_episodes': sum(ep.buffered() for ep in self._episodes.values()
-                                          if not ep.finalized),
+            'buffered_open_episodes': sum(
+                ep.buffered() for ep in self._episodes.values() if not ep.finalized
+            ),
             'held_before_layout': len(self._pending_layout),
             'held_without_episode': len(self._pending_episode),
             'open_episodes': sum(1 for ep in self._episodes.values() if not ep.finalized),
@@ -306,8 +343,9 @@ class Assembler:
                 return ep
         return None
 
-    def _place(self, sensor_id: int, stamp_ns: int, position: float, velocity: float,
-               now: float) -> None:
+    def _place(
+        self, sensor_id: int, stamp_ns: int, position: float, velocity: float, now: float
+    ) -> None:
         s = self._index.get(sensor_id)
         if s is None:
             self._reject('unknown_sensor', sensor_id, stamp_ns)
@@ -360,20 +398,35 @@ class Assembler:
         elif ep.next_segment == len(ep.segments) and ep.ended is not None:
             self._advance(ep, now)
 
-    def _job(self, ep: _Episode, kind: str, segment: int, parts: tuple[Part, ...],
-             now: float, forced: bool) -> Job:
-        return Job(kind=kind, episode_id=ep.id, layout=ep.layout, n_targets=ep.num_targets,
-                   method=ep.method, associator_config=ep.associator_config,
-                   segment=segment, segments_total=len(ep.segments), parts=parts,
-                   completed_at=now, forced=forced)
+    def _job(
+        self,
+        ep: _Episode,
+        kind: str,
+        segment: int,
+        parts: tuple[Part, ...],
+        now: float,
+        forced: bool,
+    ) -> Job:
+        return Job(
+            kind=kind,
+            episode_id=ep.id,
+            layout=ep.layout,
+            n_targets=ep.num_targets,
+            method=ep.method,
+            associator_config=ep.associator_config,
+            segment=segment,
+            segments_total=len(ep.segments),
+            parts=parts,
+            completed_at=now,
+            forced=forced,
+        )
 
     def _advance(self, ep: _Episode, now: float, forced: bool = False) -> None:
         while ep.next_segment < len(ep.segments):
             seg = ep.segments[ep.next_segment]
             if not forced and not all(ep.sensor_done(s) for s in seg):
                 return
-            self._submit(self._job(ep, 'segment', ep.next_segment, (ep.part(seg),), now,
-                                   forced))
+            self._submit(self._job(ep, 'segment', ep.next_segment, (ep.part(seg),), now, forced))
             ep.next_segment += 1
             self.segments_done += 1
         if not forced:
@@ -395,6 +448,9 @@ class Assembler:
 
 
 def _same_layout(a: Layout, b: Layout) -> bool:
-    return (a.road_length == b.road_length and a.names == b.names
-            and np.array_equal(a.sensor_ids, b.sensor_ids)
-            and np.array_equal(a.positions, b.positions))
+    return (
+        a.road_length == b.road_length
+        and a.names == b.names
+        and np.array_equal(a.sensor_ids, b.sensor_ids)
+        and np.array_equal(a.positions, b.positions)
+    )

@@ -1,7 +1,7 @@
 """``mlkm_assoc association_node``: incremental data association of live detections.
 
 A thin adapter: parameters -> :class:`AssociationConfig`; messages -> plain values
-(:mod:`road_sensors.conversions`); the ROS-free :class:`~mlkm_assoc.assembly.Assembler`
+(:mod:`mlkm_ros.conversions`); the ROS-free :class:`~mlkm_assoc.assembly.Assembler`
 buffers detections per episode and segment and decides completion; a solver thread runs the
 core associator (:mod:`mlkm_assoc.solver`) on each completed segment and publishes the
 updated tracks, so the executor thread only ever appends to lists (fast ingest).
@@ -21,14 +21,14 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.subscription import Subscription
-from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
 
 from mlkm_assoc.assembly import REJECT_REASONS, Assembler, AssociationConfig, Job
 from mlkm_assoc.solver import SolverProcess, Update
 from mlkm_core.associators.base import available_methods
-from road_sensors import conversions as conv
-from road_sensors import qos
-from road_sensors.params import ParameterError, ParamSpec, declare_parameters, positive
+from mlkm_ros import conversions as conv
+from mlkm_ros import qos
+from mlkm_ros.params import ParameterError, ParamSpec, declare_parameters, positive
+from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
 
 DETECTION_TYPE = 'road_sensor_msgs/msg/Detection'
 NS_PER_S = conv.NS_PER_S
@@ -42,20 +42,40 @@ def _check_method(value: str) -> str | None:
 
 
 SPECS = [
-    ParamSpec('method', 'mlkm',
-              'associator from the core, any of mlkm_core available_methods() (applies from '
-              'the next episode) [-]', check=_check_method),
-    ParamSpec('segment_size', 5,
-              'K: sensors per road segment; one association update per completed segment '
-              '(applies from the next episode) [-]', 1, 100000),
-    ParamSpec('seed', 0, 'random state of the associator (applies from the next episode) [-]',
-              0, 2**31 - 1),
-    ParamSpec('completion_timeout', 5.0,
-              'after an episode ended, associate what is there once nothing arrived for this '
-              'long; also how long a detection waits for its episode [s]', 1e-3, 1e6,
-              check=positive),
-    ParamSpec('diagnostics_period', 1.0, 'period of /diagnostics [s]', 0.01, 3600.0,
-              read_only=True),
+    ParamSpec(
+        'method',
+        'mlkm',
+        'associator from the core, any of mlkm_core available_methods() (applies from '
+        'the next episode) [-]',
+        check=_check_method,
+    ),
+    ParamSpec(
+        'segment_size',
+        5,
+        'K: sensors per road segment; one association update per completed segment '
+        '(applies from the next episode) [-]',
+        1,
+        100000,
+    ),
+    ParamSpec(
+        'seed',
+        0,
+        'random state of the associator (applies from the next episode) [-]',
+        0,
+        2**31 - 1,
+    ),
+    ParamSpec(
+        'completion_timeout',
+        5.0,
+        'after an episode ended, associate what is there once nothing arrived for this '
+        'long; also how long a detection waits for its episode [s]',
+        1e-3,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'diagnostics_period', 1.0, 'period of /diagnostics [s]', 0.01, 3600.0, read_only=True
+    ),
 ]
 
 
@@ -79,22 +99,28 @@ class AssociationNode(Node):
         self._diagnostics_due: bool = False
         self._det_subs: dict[str, Subscription] = {}
         self._prefix_re = re.compile(
-            '^' + re.escape(self.resolve_topic_name(qos.DETECTIONS_PREFIX)) +
-            r'/([^/]+)/detections$')
+            '^'
+            + re.escape(self.resolve_topic_name(qos.DETECTIONS_PREFIX))
+            + r'/([^/]+)/detections$'
+        )
         self._tracks_pub = self.create_publisher(TrackArray, qos.TRACKS_TOPIC, qos.TRACKS_QOS)
-        self._diag_pub = self.create_publisher(DiagnosticArray, qos.DIAGNOSTICS_TOPIC,
-                                               qos.DIAGNOSTICS_QOS)
+        self._diag_pub = self.create_publisher(
+            DiagnosticArray, qos.DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS_QOS
+        )
         self._layout_sub = self.create_subscription(
-            SensorLayout, qos.LAYOUT_TOPIC, self._on_layout, qos.LAYOUT_QOS)
+            SensorLayout, qos.LAYOUT_TOPIC, self._on_layout, qos.LAYOUT_QOS
+        )
         self._episode_sub = self.create_subscription(
-            EpisodeInfo, qos.EPISODE_TOPIC, self._on_episode, qos.EPISODE_QOS)
+            EpisodeInfo, qos.EPISODE_TOPIC, self._on_episode, qos.EPISODE_QOS
+        )
         self._tick_timer = self.create_timer(0.25, self._on_tick)
         self._diag_timer = self.create_timer(self._diag_period, self.publish_diagnostics)
         self._worker = threading.Thread(target=self._work, name='publisher', daemon=True)
         self._worker.start()
         self.get_logger().info(
             f'method {self._config.method}, segment_size {self._config.segment_size}; '
-            'waiting for the sensor layout')
+            'waiting for the sensor layout'
+        )
 
     # --- parameters -----------------------------------------------------------------------
     def _on_change(self, changed: dict[str, Any]) -> None:
@@ -131,17 +157,24 @@ class AssociationNode(Node):
             self._subscribe(topic)
         self.get_logger().info(
             f'layout: {layout.n_sensors} sensors on {layout.road_length:g} m; '
-            f'subscribed to {len(wanted)} detection topics')
+            f'subscribed to {len(wanted)} detection topics'
+        )
 
     def _subscribe(self, topic: str) -> None:
         if topic not in self._det_subs:
             self._det_subs[topic] = self.create_subscription(
-                Detection, topic, self._on_detection, qos.DETECTIONS_QOS)
+                Detection, topic, self._on_detection, qos.DETECTIONS_QOS
+            )
 
     def _on_detection(self, msg: Detection) -> None:
         stamp = msg.header.stamp
-        self._assembler.add_detection(msg.sensor_id, stamp.sec * NS_PER_S + stamp.nanosec,
-                                      msg.position, msg.velocity, time.monotonic())
+        self._assembler.add_detection(
+            msg.sensor_id,
+            stamp.sec * NS_PER_S + stamp.nanosec,
+            msg.position,
+            msg.velocity,
+            time.monotonic(),
+        )
 
     def _on_episode(self, msg: EpisodeInfo) -> None:
         counts = None
@@ -151,9 +184,14 @@ class AssociationNode(Node):
             except ValueError as exc:
                 self.get_logger().error(f'episode {msg.episode_id} ENDED refused: {exc}')
                 return
-        self._assembler.add_episode(msg.episode_id, msg.num_targets,
-                                    conv.time_to_ns(msg.start), conv.time_to_ns(msg.end),
-                                    counts, time.monotonic())
+        self._assembler.add_episode(
+            msg.episode_id,
+            msg.num_targets,
+            conv.time_to_ns(msg.start),
+            conv.time_to_ns(msg.end),
+            counts,
+            time.monotonic(),
+        )
 
     def _on_tick(self) -> None:
         self._assembler.tick(time.monotonic())
@@ -168,8 +206,11 @@ class AssociationNode(Node):
                     self._subscribe(name)
 
     def _on_reject(self, reason: str, detail: str) -> None:
-        self.get_logger().warn(f'detection rejected ({reason}): {detail}; rejected so far: '
-                               f'{dict(self._assembler.rejected)}', throttle_duration_sec=2.0)
+        self.get_logger().warn(
+            f'detection rejected ({reason}): {detail}; rejected so far: '
+            f'{dict(self._assembler.rejected)}',
+            throttle_duration_sec=2.0,
+        )
 
     # --- solving (solver process) and publishing (worker thread) ---------------------------
     def _submit(self, job: Job) -> None:
@@ -204,7 +245,8 @@ class AssociationNode(Node):
             self._finals_published += 1
             self.get_logger().info(
                 f'episode {update.episode_id}: final tracks, {update.detections} detections '
-                f'in {update.tracks} tracks, {update.unassigned} unassigned')
+                f'in {update.tracks} tracks, {update.unassigned} unassigned'
+            )
             self._diagnostics_due = True  # published from the executor thread
 
     # --- diagnostics ----------------------------------------------------------------------
@@ -253,12 +295,20 @@ class AssociationNode(Node):
         values = self.diagnostics()
         rejected = int(values['rejected'])
         level = DiagnosticStatus.WARN if rejected or self._solver_errors else DiagnosticStatus.OK
-        message = (f'{values["received"]} detections received, {rejected} rejected, '
-                   f'{values["segments_done"]} segments, {values["episodes_final"]} episodes')
-        self._diag_pub.publish(conv.diagnostics_to_msg(
-            name=self.get_fully_qualified_name(), hardware_id='mlkm_assoc',
-            level=level[0], message=message, values=values,
-            stamp_ns=self.get_clock().now().nanoseconds))
+        message = (
+            f'{values["received"]} detections received, {rejected} rejected, '
+            f'{values["segments_done"]} segments, {values["episodes_final"]} episodes'
+        )
+        self._diag_pub.publish(
+            conv.diagnostics_to_msg(
+                name=self.get_fully_qualified_name(),
+                hardware_id='mlkm_assoc',
+                level=level[0],
+                message=message,
+                values=values,
+                stamp_ns=self.get_clock().now().nanoseconds,
+            )
+        )
 
     def destroy_node(self) -> None:
         self._solver.close()

@@ -19,6 +19,12 @@ import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+
+from mlkm_core.metrics import Score, score
+from mlkm_core.types import Detections
+from mlkm_ros import conversions as conv
+from mlkm_ros import qos
+from mlkm_ros.params import ParameterError, ParamSpec, declare_parameters, positive
 from road_sensor_msgs.msg import (
     AssociationScore,
     EpisodeInfo,
@@ -27,18 +33,18 @@ from road_sensor_msgs.msg import (
     TrackArray,
 )
 
-from mlkm_core.metrics import Score, score
-from mlkm_core.types import Detections
-from road_sensors import conversions as conv
-from road_sensors import qos
-from road_sensors.params import ParameterError, ParamSpec, declare_parameters, positive
-
 NS_PER_S = conv.NS_PER_S
 
 SPECS = [
-    ParamSpec('truth_timeout', 10.0,
-              'score an episode with the truth at hand when its final tracks arrived this '
-              'long ago and truth is still missing [s]', 1e-3, 1e6, check=positive),
+    ParamSpec(
+        'truth_timeout',
+        10.0,
+        'score an episode with the truth at hand when its final tracks arrived this '
+        'long ago and truth is still missing [s]',
+        1e-3,
+        1e6,
+        check=positive,
+    ),
 ]
 
 
@@ -61,17 +67,20 @@ class ScorerNode(Node):
         self._scored: set[int] = set()
         self._accuracies: list[float] = []
         self._sensor_index: dict[int, int] = {}
-        self._score_pub = self.create_publisher(AssociationScore, qos.SCORE_TOPIC,
-                                                qos.SCORE_QOS)
+        self._score_pub = self.create_publisher(AssociationScore, qos.SCORE_TOPIC, qos.SCORE_QOS)
         self._subs = [
-            self.create_subscription(TrackArray, qos.TRACKS_TOPIC, self._on_tracks,
-                                     qos.TRACKS_QOS),
-            self.create_subscription(GroundTruth, qos.GROUND_TRUTH_TOPIC, self._on_truth,
-                                     qos.GROUND_TRUTH_QOS),
-            self.create_subscription(EpisodeInfo, qos.EPISODE_TOPIC, self._on_episode,
-                                     qos.EPISODE_QOS),
-            self.create_subscription(SensorLayout, qos.LAYOUT_TOPIC, self._on_layout,
-                                     qos.LAYOUT_QOS),
+            self.create_subscription(
+                TrackArray, qos.TRACKS_TOPIC, self._on_tracks, qos.TRACKS_QOS
+            ),
+            self.create_subscription(
+                GroundTruth, qos.GROUND_TRUTH_TOPIC, self._on_truth, qos.GROUND_TRUTH_QOS
+            ),
+            self.create_subscription(
+                EpisodeInfo, qos.EPISODE_TOPIC, self._on_episode, qos.EPISODE_QOS
+            ),
+            self.create_subscription(
+                SensorLayout, qos.LAYOUT_TOPIC, self._on_layout, qos.LAYOUT_QOS
+            ),
         ]
         self._timer = self.create_timer(0.5, self._on_timer)
 
@@ -89,10 +98,11 @@ class ScorerNode(Node):
             return
         stamp = msg.header.stamp
         self._truth.setdefault(episode, {})[
-            (msg.sensor_id, stamp.sec * NS_PER_S + stamp.nanosec)] = (
-            conv.ground_truth_target(msg), msg.true_velocity)
+            (msg.sensor_id, stamp.sec * NS_PER_S + stamp.nanosec)
+        ] = (conv.ground_truth_target(msg), msg.true_velocity)
         if episode in self._finals and len(self._truth[episode]) >= self._expected.get(
-                episode, 1 << 62):
+            episode, 1 << 62
+        ):
             self._score(episode)
 
     def _on_episode(self, msg: EpisodeInfo) -> None:
@@ -114,13 +124,17 @@ class ScorerNode(Node):
                 self.get_logger().warn(
                     f'episode {episode}: scoring with {have} truth messages '
                     f'({"unknown" if want is None else want} expected) after waiting '
-                    f'{self._config.truth_timeout:g} s')
+                    f'{self._config.truth_timeout:g} s'
+                )
                 self._score(episode)
 
     # --- scoring --------------------------------------------------------------------------
     def _try(self, episode: int) -> None:
-        if episode in self._finals and episode in self._expected and \
-                len(self._truth.get(episode, {})) >= self._expected[episode]:
+        if (
+            episode in self._finals
+            and episode in self._expected
+            and len(self._truth.get(episode, {})) >= self._expected[episode]
+        ):
             self._score(episode)
 
     def _score(self, episode: int) -> None:
@@ -135,23 +149,33 @@ class ScorerNode(Node):
         index = self._sensor_index
         sensor_index = np.array([index.get(s, s) for s in sensor_ids.tolist()], np.int64)
         values = list(truth.values())
-        detections = Detections(sensor_index, conv.ns_to_seconds(stamps_ns),
-                                np.array([v[1] for v in values], dtype=float),
-                                np.array([v[0] for v in values], dtype=np.int64))
+        detections = Detections(
+            sensor_index,
+            conv.ns_to_seconds(stamps_ns),
+            np.array([v[1] for v in values], dtype=float),
+            np.array([v[0] for v in values], dtype=np.int64),
+        )
         labels_all = np.array([track_of.get(k, -1) for k in keys], dtype=np.int64)
         result: Score = score(detections, labels_all)
         self._accuracies.append(result.accuracy)
         mean = statistics.fmean(self._accuracies)
-        self._score_pub.publish(conv.score_to_msg(
-            episode_id=episode, method=tracks.method, score=result, mean_accuracy=mean,
-            episodes_scored=len(self._accuracies),
-            stamp_ns=self.get_clock().now().nanoseconds))
+        self._score_pub.publish(
+            conv.score_to_msg(
+                episode_id=episode,
+                method=tracks.method,
+                score=result,
+                mean_accuracy=mean,
+                episodes_scored=len(self._accuracies),
+                stamp_ns=self.get_clock().now().nanoseconds,
+            )
+        )
         self.get_logger().info(
             f'episode {episode} [{tracks.method}]: accuracy {result.accuracy:.4f} '
             f'({result.correct}/{result.total}), link P/R {result.link_precision:.4f}/'
             f'{result.link_recall:.4f}, id switches {result.identity_switches}, '
             f'ARI {result.adjusted_rand_index:.4f}; mean accuracy {mean:.4f} over '
-            f'{len(self._accuracies)} episode(s)')
+            f'{len(self._accuracies)} episode(s)'
+        )
 
 
 def main(args: list[str] | None = None) -> int:

@@ -20,7 +20,7 @@ from scipy.optimize import linear_sum_assignment
 from mlkm_assoc.assembly import Job, Part
 from mlkm_core.associators.base import Session, make_associator
 from mlkm_core.types import Detections, Layout
-from road_sensors.conversions import ns_to_seconds
+from mlkm_ros.conversions import ns_to_seconds
 
 
 @dataclass(frozen=True)
@@ -55,9 +55,11 @@ class _EpisodeSolve:
 def _concat(parts: list[Part]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if not parts:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    return (np.concatenate([p.sensor_index for p in parts]),
-            np.concatenate([p.stamps_ns for p in parts]),
-            np.concatenate([p.velocities for p in parts]))
+    return (
+        np.concatenate([p.sensor_index for p in parts]),
+        np.concatenate([p.stamps_ns for p in parts]),
+        np.concatenate([p.velocities for p in parts]),
+    )
 
 
 def to_detections(part: Part) -> Detections:
@@ -125,8 +127,7 @@ class Solver:
         else:  # 'rerun': associate everything again, from scratch
             old = self._episodes.pop(job.episode_id, None) or _EpisodeSolve()
             si, ns, _ = _concat(old.fed)
-            previous = {(a, b): c for a, b, c in
-                        zip(si.tolist(), ns.tolist(), old.ids.tolist())}
+            previous = {(a, b): c for a, b, c in zip(si.tolist(), ns.tolist(), old.ids.tolist())}
             state = _EpisodeSolve()
             labels = None
             for part in job.parts:
@@ -137,18 +138,30 @@ class Solver:
                 state.fed = list(job.parts)
                 labels = np.full(sum(p.stamps_ns.size for p in job.parts), -1, np.int64)
             si, ns, _ = _concat(state.fed)
-            aligned = np.array([previous.get(k, -1) for k in zip(si.tolist(), ns.tolist())],
-                               dtype=np.int64)
+            aligned = np.array(
+                [previous.get(k, -1) for k in zip(si.tolist(), ns.tolist())], dtype=np.int64
+            )
             state.ids = stable_ids(aligned, labels)
             state.segments_done = len(job.parts)
         solve_time = time.perf_counter() - t0
         si, ns, vel = _concat(state.fed)
-        return Result(episode_id=job.episode_id, method=job.method,
-                      final=job.kind != 'segment', segments_done=state.segments_done,
-                      segments_total=job.segments_total, layout=job.layout, sensor_index=si,
-                      stamps_ns=ns, velocities=vel, labels=state.ids, solve_time=solve_time,
-                      completed_at=job.completed_at, forced=job.forced, error=error,
-                      started_at=started_at)
+        return Result(
+            episode_id=job.episode_id,
+            method=job.method,
+            final=job.kind != 'segment',
+            segments_done=state.segments_done,
+            segments_total=job.segments_total,
+            layout=job.layout,
+            sensor_index=si,
+            stamps_ns=ns,
+            velocities=vel,
+            labels=state.ids,
+            solve_time=solve_time,
+            completed_at=job.completed_at,
+            forced=job.forced,
+            error=error,
+            started_at=started_at,
+        )
 
     @staticmethod
     def _add(state: _EpisodeSolve, job: Job, part: Part) -> tuple[np.ndarray, str | None]:
@@ -165,9 +178,11 @@ class Solver:
                 raise ValueError(f'{labels.size} labels for {n_total} detections')
             return labels, None
         except Exception as exc:  # noqa: BLE001 - reported; the node keeps running
-            return (np.full(n_total, -1, dtype=np.int64),
-                    f'{job.method} failed on episode {job.episode_id}, segment '
-                    f'{state.segments_done - 1}: {type(exc).__name__}: {exc}')
+            return (
+                np.full(n_total, -1, dtype=np.int64),
+                f'{job.method} failed on episode {job.episode_id}, segment '
+                f'{state.segments_done - 1}: {type(exc).__name__}: {exc}',
+            )
 
 
 @dataclass(frozen=True)
@@ -192,22 +207,37 @@ def encode(result: Result) -> Update:
     node's process only hands bytes to the middleware)."""
     from rclpy.serialization import serialize_message
 
-    from road_sensors.conversions import tracks_to_msg
+    from mlkm_ros.conversions import tracks_to_msg
 
     layout = result.layout
     msg = tracks_to_msg(
-        episode_id=result.episode_id, method=result.method, final=result.final,
-        segments_done=result.segments_done, segments_total=result.segments_total,
-        sensor_ids=layout.sensor_ids[result.sensor_index], stamps_ns=result.stamps_ns,
-        velocities=result.velocities, positions=layout.positions[result.sensor_index],
-        labels=result.labels, solve_time=result.solve_time, stamp_ns=time.time_ns())
+        episode_id=result.episode_id,
+        method=result.method,
+        final=result.final,
+        segments_done=result.segments_done,
+        segments_total=result.segments_total,
+        sensor_ids=layout.sensor_ids[result.sensor_index],
+        stamps_ns=result.stamps_ns,
+        velocities=result.velocities,
+        positions=layout.positions[result.sensor_index],
+        labels=result.labels,
+        solve_time=result.solve_time,
+        stamp_ns=time.time_ns(),
+    )
     labels = result.labels
-    return Update(data=serialize_message(msg), episode_id=result.episode_id,
-                  final=result.final, detections=int(labels.size),
-                  tracks=int(np.unique(labels[labels >= 0]).size),
-                  unassigned=int((labels < 0).sum()), solve_time=result.solve_time,
-                  completed_at=result.completed_at, forced=result.forced, error=result.error,
-                  started_at=result.started_at)
+    return Update(
+        data=serialize_message(msg),
+        episode_id=result.episode_id,
+        final=result.final,
+        detections=int(labels.size),
+        tracks=int(np.unique(labels[labels >= 0]).size),
+        unassigned=int((labels < 0).sum()),
+        solve_time=result.solve_time,
+        completed_at=result.completed_at,
+        forced=result.forced,
+        error=result.error,
+        started_at=result.started_at,
+    )
 
 
 class SolverProcess:
@@ -221,8 +251,9 @@ class SolverProcess:
         # Results come back through a pipe written synchronously by the solver's main thread
         # (a Queue's feeder thread would wait for the GIL behind the next solve).
         self._results, sender = ctx.Pipe(duplex=False)
-        self._proc = ctx.Process(target=_serve, args=(self._jobs, sender, os.getpid()),
-                                 name='mlkm_solver', daemon=True)
+        self._proc = ctx.Process(
+            target=_serve, args=(self._jobs, sender, os.getpid()), name='mlkm_solver', daemon=True
+        )
         self._proc.start()
         sender.close()  # the child holds the only writer: its exit ends get() with None
 
@@ -282,11 +313,21 @@ def _warm_up() -> None:
     rng = np.random.default_rng(0)
     n = 3
     stamps = np.concatenate([np.arange(n) * 10.0 + p / 5.0 for p in (2.0, 4.0, 6.0)])
-    part = Part(np.repeat(np.arange(3), n), (stamps * 1e9).astype(np.int64),
-                5.0 + rng.random(3 * n))
-    job = Job(kind='segment', episode_id=0, layout=layout, n_targets=n, method='mlkm',
-              associator_config=AssociatorConfig(segment_size=3), segment=0, segments_total=1,
-              parts=(part,), completed_at=0.0)
+    part = Part(
+        np.repeat(np.arange(3), n), (stamps * 1e9).astype(np.int64), 5.0 + rng.random(3 * n)
+    )
+    job = Job(
+        kind='segment',
+        episode_id=0,
+        layout=layout,
+        n_targets=n,
+        method='mlkm',
+        associator_config=AssociatorConfig(segment_size=3),
+        segment=0,
+        segments_total=1,
+        parts=(part,),
+        completed_at=0.0,
+    )
     try:
         encode(Solver().run(job))
     except Exception:  # noqa: BLE001 - only a warm-up; real errors show on real jobs

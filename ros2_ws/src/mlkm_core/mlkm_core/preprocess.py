@@ -16,23 +16,29 @@ import numpy as np
 from mlkm_core.types import Detections, Layout
 
 
-def back_project(stamp: np.ndarray, velocity: np.ndarray, position: np.ndarray,
-                 ref_position: float) -> np.ndarray:
+def back_project(
+    stamp: np.ndarray, velocity: np.ndarray, position: np.ndarray, ref_position: float
+) -> np.ndarray:
     """t' = t - (R_n - R_ref) / v, elementwise."""
     return np.asarray(stamp, float) - (np.asarray(position, float) - ref_position) / np.asarray(
-        velocity, float)
+        velocity, float
+    )
 
 
-def forward_project(stamp_ref: np.ndarray, velocity: np.ndarray, position: np.ndarray,
-                    ref_position: float) -> np.ndarray:
+def forward_project(
+    stamp_ref: np.ndarray, velocity: np.ndarray, position: np.ndarray, ref_position: float
+) -> np.ndarray:
     """Inverse of ``back_project``: t = t' + (R_n - R_ref) / v."""
     return np.asarray(stamp_ref, float) + (np.asarray(position, float) - ref_position) / (
-        np.asarray(velocity, float))
+        np.asarray(velocity, float)
+    )
 
 
-def preprocess(layout: Layout, detections: Detections, ref_position: float | None = None
-               ) -> np.ndarray:
+def preprocess(
+    layout: Layout, detections: Detections, ref_position: float | None = None
+) -> np.ndarray:
     """Back-projected stamps of ``detections`` to ``ref_position`` (default: first sensor)."""
     ref = float(layout.positions[0]) if ref_position is None else float(ref_position)
-    return back_project(detections.stamp, detections.velocity,
-                        layout.positions[detections.sensor_index], ref)
+    return back_project(
+        detections.stamp, detections.velocity, layout.positions[detections.sensor_index], ref
+    )

@@ -117,8 +117,10 @@ class SimConfig:
             (self.n_targets >= 1, 'n_targets must be >= 1'),
             (self.velocity_mean > 0, 'velocity_mean must be > 0'),
             (self.velocity_std >= 0, 'velocity_std must be >= 0'),
-            (self.start_increment_min <= self.start_increment_max,
-             'start_increment_min must be <= start_increment_max'),
+            (
+                self.start_increment_min <= self.start_increment_max,
+                'start_increment_min must be <= start_increment_max',
+            ),
             (self.velocity_variation >= 0, 'velocity_variation must be >= 0'),
             (self.variation_length > 0, 'variation_length must be > 0'),
             (self.variation_step > 0, 'variation_step must be > 0'),
@@ -149,19 +151,20 @@ def _streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
     return np.random.default_rng(layout_seq), np.random.default_rng(traffic_seq)
 
 
-def _speed_profiles(config: SimConfig, v0: np.ndarray, rng: np.random.Generator,
-                    n_cells: int) -> np.ndarray:
+def _speed_profiles(
+    config: SimConfig, v0: np.ndarray, rng: np.random.Generator, n_cells: int
+) -> np.ndarray:
     """Speed of each target in each grid cell, shape (n_targets, n_cells): OU around v0."""
     a = math.exp(-config.variation_step / config.variation_length)
     noise = rng.standard_normal((v0.size, n_cells))
     noise[:, 0] = 0.0  # v(0) = v0: the fluctuation starts at zero
-    dev = lfilter([config.velocity_variation * math.sqrt(1.0 - a * a)], [1.0, -a], noise,
-                  axis=1)
+    dev = lfilter([config.velocity_variation * math.sqrt(1.0 - a * a)], [1.0, -a], noise, axis=1)
     return np.maximum(v0[:, None] + dev, config.min_speed)
 
 
-def _passages(config: SimConfig, layout: Layout, rng: np.random.Generator
-              ) -> tuple[np.ndarray, np.ndarray]:
+def _passages(
+    config: SimConfig, layout: Layout, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """True passage times and speeds, shape (n_targets, n_sensors)."""
     n = config.n_targets
     v0 = rng.normal(config.velocity_mean, config.velocity_std, n)
@@ -173,8 +176,10 @@ def _passages(config: SimConfig, layout: Layout, rng: np.random.Generator
     n_cells = int(math.ceil(config.road_length / step)) + 1
     speed = _speed_profiles(config, v0, rng, n_cells)
     # time at the left edge of each cell: t0 + sum of step / v over the cells before
-    edge_time = np.concatenate(
-        [np.zeros((n, 1)), np.cumsum(step / speed[:, :-1], axis=1)], axis=1) + t0[:, None]
+    edge_time = (
+        np.concatenate([np.zeros((n, 1)), np.cumsum(step / speed[:, :-1], axis=1)], axis=1)
+        + t0[:, None]
+    )
     cell = np.minimum((layout.positions // step).astype(np.int64), n_cells - 1)
     offset = layout.positions - cell * step
     v_at = speed[:, cell]
@@ -210,8 +215,9 @@ def _episode(config: SimConfig, layout: Layout, rng: np.random.Generator) -> Dat
         fa_sensor = np.repeat(np.arange(s), counts)
         lo, hi = t_at.min(axis=0)[fa_sensor], t_at.max(axis=0)[fa_sensor]
         fa_stamp = lo + (hi - lo) * rng.random(fa_sensor.size)
-        fa_vel = np.maximum(rng.normal(config.velocity_mean, config.velocity_std,
-                                       fa_sensor.size), config.min_speed)
+        fa_vel = np.maximum(
+            rng.normal(config.velocity_mean, config.velocity_std, fa_sensor.size), config.min_speed
+        )
         sensor = np.concatenate([sensor, fa_sensor])
         target = np.concatenate([target, np.full(fa_sensor.size, FALSE_ALARM)])
         stamp = np.concatenate([stamp, fa_stamp])
@@ -219,8 +225,9 @@ def _episode(config: SimConfig, layout: Layout, rng: np.random.Generator) -> Dat
     if config.stamp_noise > 0:
         stamp = stamp + rng.normal(0.0, config.stamp_noise, stamp.size)
     if config.velocity_noise > 0:
-        velocity = np.maximum(velocity + rng.normal(0.0, config.velocity_noise, velocity.size),
-                              config.min_speed)
+        velocity = np.maximum(
+            velocity + rng.normal(0.0, config.velocity_noise, velocity.size), config.min_speed
+        )
     order = np.lexsort((stamp, sensor))
     dets = Detections(sensor[order], stamp[order], velocity[order], target[order])
     return Dataset(layout, dets, n)
@@ -237,12 +244,16 @@ def time_window(dataset: Dataset) -> tuple[float, float]:
 def shift(dataset: Dataset, offset: float) -> Dataset:
     """The same episode with every stamp moved by ``offset`` seconds."""
     d = dataset.detections
-    return Dataset(dataset.layout, Detections(d.sensor_index, d.stamp + offset, d.velocity,
-                                              d.target), dataset.n_targets)
+    return Dataset(
+        dataset.layout,
+        Detections(d.sensor_index, d.stamp + offset, d.velocity, d.target),
+        dataset.n_targets,
+    )
 
 
-def simulate_episodes(config: SimConfig, seed: int, n_episodes: int, gap: float = 10.0
-                      ) -> list[Dataset]:
+def simulate_episodes(
+    config: SimConfig, seed: int, n_episodes: int, gap: float = 10.0
+) -> list[Dataset]:
     """Back-to-back episodes on one shared layout, with non-overlapping time windows.
 
     Episode 0 is ``simulate(config, seed)`` unchanged; episode k >= 1 has its own traffic and

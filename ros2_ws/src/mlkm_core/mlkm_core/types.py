@@ -35,8 +35,11 @@ class Layout:
             raise ValueError('sensor positions must be unique and strictly increasing')
         if not (self.road_length > 0 and pos[0] > 0 and pos[-1] < self.road_length):
             raise ValueError('sensor positions must lie inside (0, road_length)')
-        ids = (np.arange(pos.size, dtype=np.int64) if self.sensor_ids is None
-               else np.asarray(self.sensor_ids, dtype=np.int64))
+        ids = (
+            np.arange(pos.size, dtype=np.int64)
+            if self.sensor_ids is None
+            else np.asarray(self.sensor_ids, dtype=np.int64)
+        )
         if ids.shape != pos.shape or np.unique(ids).size != ids.size or np.any(ids < 0):
             raise ValueError('sensor ids must be unique, non-negative, one per position')
         names = tuple(self.names) or tuple(f'sensor_{int(i)}' for i in ids)
@@ -121,5 +124,6 @@ def segments(n_sensors: int, segment_size: int) -> list[np.ndarray]:
     """
     if segment_size < 1:
         raise ValueError('segment_size must be at least 1')
-    return [np.arange(s, min(s + segment_size, n_sensors))
-            for s in range(0, n_sensors, segment_size)]
+    return [
+        np.arange(s, min(s + segment_size, n_sensors)) for s in range(0, n_sensors, segment_size)
+    ]

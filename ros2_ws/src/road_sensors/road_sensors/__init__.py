@@ -1,1 +1,1 @@
-"""Simulated road-side sensors, and the graph's shared QoS profiles and message conversions."""
+"""Simulated road-side sensors: the sensor_sim node."""

@@ -23,14 +23,14 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from road_sensor_msgs.msg import Detection, EpisodeInfo, GroundTruth, SensorLayout
 from rosgraph_msgs.msg import Clock
 
 from mlkm_core.simulator import SimConfig, simulate_episodes, time_window
 from mlkm_core.types import Dataset
-from road_sensors import conversions as conv
-from road_sensors import qos
-from road_sensors.params import ParameterError, ParamSpec, declare_parameters, non_negative
+from mlkm_ros import conversions as conv
+from mlkm_ros import qos
+from mlkm_ros.params import ParameterError, ParamSpec, declare_parameters, non_negative
+from road_sensor_msgs.msg import Detection, EpisodeInfo, GroundTruth, SensorLayout
 
 #: Descriptions (with units) and inclusive ranges of the simulator's settings.
 _SIM_DOCS: dict[str, tuple[str, float | None, float | None]] = {
@@ -39,20 +39,19 @@ _SIM_DOCS: dict[str, tuple[str, float | None, float | None]] = {
     'n_targets': ('number of targets N_A per episode [-]', 1, 10000000),
     'velocity_mean': ('mean cruise speed mu [m/s]', 1e-6, 1e6),
     'velocity_std': ('std of the cruise speed sigma [m/s]', 0.0, 1e6),
-    'start_increment_min': ('t_min of the start-time increment U(t_min, t_max) [s]',
-                            -1e6, 1e6),
-    'start_increment_max': ('t_max of the start-time increment U(t_min, t_max) [s]',
-                            -1e6, 1e6),
-    'velocity_variation': ('stationary std of the speed fluctuation along the road [m/s]',
-                           0.0, 1e6),
+    'start_increment_min': ('t_min of the start-time increment U(t_min, t_max) [s]', -1e6, 1e6),
+    'start_increment_max': ('t_max of the start-time increment U(t_min, t_max) [s]', -1e6, 1e6),
+    'velocity_variation': (
+        'stationary std of the speed fluctuation along the road [m/s]',
+        0.0,
+        1e6,
+    ),
     'variation_length': ('correlation length of the speed fluctuation [m]', 1e-6, 1e9),
     'variation_step': ('grid step of the speed profile [m]', 1e-6, 1e9),
     'min_speed': ('speeds are clipped at this floor [m/s]', 1e-9, 1e6),
-    'miss_probability': ('probability that a passage is not reported [-], in [0, 1)',
-                         0.0, 1.0),
+    'miss_probability': ('probability that a passage is not reported [-], in [0, 1)', 0.0, 1.0),
     'false_alarm_rate': ('expected false alarms per sensor per target [-]', 0.0, 1e6),
-    'false_alarms_per_sensor': ('expected false alarms per sensor per episode [-]',
-                                0.0, 1e9),
+    'false_alarms_per_sensor': ('expected false alarms per sensor per episode [-]', 0.0, 1e9),
     'stamp_noise': ('std of the Gaussian stamp noise [s]', 0.0, 1e6),
     'velocity_noise': ('std of the Gaussian speed noise [m/s]', 0.0, 1e6),
 }
@@ -74,37 +73,77 @@ def _sim_specs() -> list[ParamSpec]:
 
 
 _NODE_SPECS = [
-    ParamSpec('seed', 0, 'seed of the layout and of every episode [-]', 0, 2**31 - 1,
-              read_only=True),
+    ParamSpec(
+        'seed', 0, 'seed of the layout and of every episode [-]', 0, 2**31 - 1, read_only=True
+    ),
     ParamSpec('episodes', 3, 'number of episodes to publish [-]', 1, 1000000, read_only=True),
-    ParamSpec('real_time_factor', 0.0,
-              'pacing: passage seconds per wall second; 1.0 = real time, 0 = as fast as '
-              'delivery allows (nothing is lost either way) [-]', 0.0, 1e6,
-              check=non_negative),
-    ParamSpec('episode_gap', 10.0,
-              'passage-time gap between the last detection of one episode and the first '
-              'of the next [s]', 0.0, 1e9, read_only=True),
-    ParamSpec('publish_clock', False, 'publish /clock with the passage time [-]',
-              read_only=True),
-    ParamSpec('wait_for_subscribers', 1,
-              'before the first episode, wait until every detection topic has at least this '
-              'many subscribers (association node, recorder, ...) [-]', 0, 1000,
-              read_only=True),
-    ParamSpec('wait_for_truth_subscribers', 0,
-              'before the first episode, wait until /road/ground_truth has at least this many '
-              'subscribers (scorer, recorder, ...) [-]', 0, 1000, read_only=True),
-    ParamSpec('wait_timeout', 60.0,
-              'give up waiting for subscribers after this long and fail; 0 = wait forever [s]',
-              0.0, 1e9, read_only=True),
-    ParamSpec('start_delay', 0.0,
-              'extra pause after the subscribers matched, before the first episode [s]',
-              0.0, 1e6, read_only=True),
-    ParamSpec('ack_timeout', 60.0,
-              'at each episode end, wait at most this long for every subscriber to '
-              'acknowledge every message [s]', 0.0, 1e9, read_only=True),
-    ParamSpec('keep_running', False,
-              'stay up after the last episode (the latched layout stays available) [-]',
-              read_only=True),
+    ParamSpec(
+        'real_time_factor',
+        0.0,
+        'pacing: passage seconds per wall second; 1.0 = real time, 0 = as fast as '
+        'delivery allows (nothing is lost either way) [-]',
+        0.0,
+        1e6,
+        check=non_negative,
+    ),
+    ParamSpec(
+        'episode_gap',
+        10.0,
+        'passage-time gap between the last detection of one episode and the first of the next [s]',
+        0.0,
+        1e9,
+        read_only=True,
+    ),
+    ParamSpec('publish_clock', False, 'publish /clock with the passage time [-]', read_only=True),
+    ParamSpec(
+        'wait_for_subscribers',
+        1,
+        'before the first episode, wait until every detection topic has at least this '
+        'many subscribers (association node, recorder, ...) [-]',
+        0,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        'wait_for_truth_subscribers',
+        0,
+        'before the first episode, wait until /road/ground_truth has at least this many '
+        'subscribers (scorer, recorder, ...) [-]',
+        0,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        'wait_timeout',
+        60.0,
+        'give up waiting for subscribers after this long and fail; 0 = wait forever [s]',
+        0.0,
+        1e9,
+        read_only=True,
+    ),
+    ParamSpec(
+        'start_delay',
+        0.0,
+        'extra pause after the subscribers matched, before the first episode [s]',
+        0.0,
+        1e6,
+        read_only=True,
+    ),
+    ParamSpec(
+        'ack_timeout',
+        60.0,
+        'at each episode end, wait at most this long for every subscriber to '
+        'acknowledge every message [s]',
+        0.0,
+        1e9,
+        read_only=True,
+    ),
+    ParamSpec(
+        'keep_running',
+        False,
+        'stay up after the last episode (the latched layout stays available) [-]',
+        read_only=True,
+    ),
 ]
 
 
@@ -145,22 +184,29 @@ class SensorSimNode(Node):
         self._config: SensorSimConfig = SensorSimConfig.from_values(values)
         self._rtf: float = self._config.real_time_factor
         cfg = self._config
-        self._datasets: list[Dataset] = simulate_episodes(cfg.sim, cfg.seed, cfg.episodes,
-                                                          cfg.episode_gap)
+        self._datasets: list[Dataset] = simulate_episodes(
+            cfg.sim, cfg.seed, cfg.episodes, cfg.episode_gap
+        )
         layout = self._datasets[0].layout
         self._layout = layout
         self._layout_pub: Publisher = self.create_publisher(
-            SensorLayout, qos.LAYOUT_TOPIC, qos.LAYOUT_QOS)
+            SensorLayout, qos.LAYOUT_TOPIC, qos.LAYOUT_QOS
+        )
         self._episode_pub: Publisher = self.create_publisher(
-            EpisodeInfo, qos.EPISODE_TOPIC, qos.EPISODE_QOS)
+            EpisodeInfo, qos.EPISODE_TOPIC, qos.EPISODE_QOS
+        )
         self._truth_pub: Publisher = self.create_publisher(
-            GroundTruth, qos.GROUND_TRUTH_TOPIC, qos.GROUND_TRUTH_QOS)
+            GroundTruth, qos.GROUND_TRUTH_TOPIC, qos.GROUND_TRUTH_QOS
+        )
         self._det_pubs: list[Publisher] = [
             self.create_publisher(Detection, qos.detections_topic(name), qos.DETECTIONS_QOS)
-            for name in layout.names]
+            for name in layout.names
+        ]
         self._clock_pub: Publisher | None = (
             self.create_publisher(Clock, qos.CLOCK_TOPIC, qos.CLOCK_QOS)
-            if cfg.publish_clock else None)
+            if cfg.publish_clock
+            else None
+        )
         self._anchor: tuple[float, float] | None = None  # (passage time, wall time)
         self._stop = threading.Event()
         self._done = threading.Event()
@@ -169,7 +215,8 @@ class SensorSimNode(Node):
         self._layout_pub.publish(conv.layout_to_msg(layout, self._now_ns()))
         self.get_logger().info(
             f'{layout.n_sensors} sensors on {layout.road_length:g} m, {cfg.episodes} episodes '
-            f'of {cfg.sim.n_targets} targets, seed {cfg.seed}, real_time_factor {self._rtf:g}')
+            f'of {cfg.sim.n_targets} targets, seed {cfg.seed}, real_time_factor {self._rtf:g}'
+        )
         self._thread = threading.Thread(target=self._run, name='sensor_sim', daemon=True)
         self._thread.start()
 
@@ -188,15 +235,17 @@ class SensorSimNode(Node):
         deadline = None if cfg.wait_timeout <= 0 else time.monotonic() + cfg.wait_timeout
         announced = False
         while not self._stop.is_set():
-            det_ok = all(p.get_subscription_count() >= cfg.wait_for_subscribers
-                         for p in self._det_pubs)
+            det_ok = all(
+                p.get_subscription_count() >= cfg.wait_for_subscribers for p in self._det_pubs
+            )
             truth_ok = self._truth_pub.get_subscription_count() >= cfg.wait_for_truth_subscribers
             if det_ok and truth_ok:
                 return True
             if not announced:
                 self.get_logger().info(
                     f'waiting for {cfg.wait_for_subscribers} subscriber(s) on every detection '
-                    f'topic and {cfg.wait_for_truth_subscribers} on ground truth')
+                    f'topic and {cfg.wait_for_truth_subscribers} on ground truth'
+                )
                 announced = True
             if deadline is not None and time.monotonic() > deadline:
                 least = min(p.get_subscription_count() for p in self._det_pubs)
@@ -204,7 +253,8 @@ class SensorSimNode(Node):
                     f'no subscribers after {cfg.wait_timeout:g} s: detection topics have '
                     f'{least} (need {cfg.wait_for_subscribers}), ground truth has '
                     f'{self._truth_pub.get_subscription_count()} '
-                    f'(need {cfg.wait_for_truth_subscribers})')
+                    f'(need {cfg.wait_for_truth_subscribers})'
+                )
                 return False
             self._stop.wait(0.05)
         return False
@@ -242,7 +292,8 @@ class SensorSimNode(Node):
             if not self._wait_acked():
                 self.get_logger().warn('not every message was acknowledged in time')
             self.get_logger().info(
-                f'published {self._published} detections in {len(self._datasets)} episodes')
+                f'published {self._published} detections in {len(self._datasets)} episodes'
+            )
         except Exception as exc:  # noqa: BLE001 - reported, and the process exits nonzero
             if not self._stop.is_set():
                 self._error = f'{type(exc).__name__}: {exc}'
@@ -256,15 +307,15 @@ class SensorSimNode(Node):
         det = dataset.detections
         start, end = time_window(dataset)
         start_ns, end_ns = conv.seconds_to_ns(start), conv.seconds_to_ns(end)
-        self._episode_pub.publish(conv.episode_started_msg(
-            k, dataset.n_targets, start_ns, end_ns, self._now_ns()))
+        self._episode_pub.publish(
+            conv.episode_started_msg(k, dataset.n_targets, start_ns, end_ns, self._now_ns())
+        )
         order = np.lexsort((det.sensor_index, det.stamp))  # passage time, then position
         sensor_index = det.sensor_index[order].tolist()
         stamps = det.stamp[order].tolist()
         stamps_ns = conv.seconds_to_ns_array(det.stamp[order]).tolist()
         velocity = det.velocity[order].tolist()
-        target = (det.target[order] if det.target is not None
-                  else np.full(len(det), -1)).tolist()
+        target = (det.target[order] if det.target is not None else np.full(len(det), -1)).tolist()
         ids = [int(s) for s in layout.sensor_ids]
         positions = [float(p) for p in layout.positions]
         det_pubs, truth_pub, clock_pub = self._det_pubs, self._truth_pub, self._clock_pub
@@ -284,11 +335,19 @@ class SensorSimNode(Node):
         # No acknowledgement wait here (Fast DDS acknowledges on its heartbeat period, ~3 s):
         # ENDED may overtake detections on other topics; its counts tell the receivers how
         # many to expect. The run ends with a wait for every acknowledgement.
-        self._episode_pub.publish(conv.episode_ended_msg(
-            k, dataset.n_targets, start_ns, end_ns, self._now_ns(),
-            {ids[s]: int(counts[s]) for s in range(layout.n_sensors)}))
+        self._episode_pub.publish(
+            conv.episode_ended_msg(
+                k,
+                dataset.n_targets,
+                start_ns,
+                end_ns,
+                self._now_ns(),
+                {ids[s]: int(counts[s]) for s in range(layout.n_sensors)},
+            )
+        )
         self.get_logger().info(
-            f'episode {k}: {len(stamps)} detections of {dataset.n_targets} targets published')
+            f'episode {k}: {len(stamps)} detections of {dataset.n_targets} targets published'
+        )
 
     # --- lifecycle ------------------------------------------------------------------------
     @property

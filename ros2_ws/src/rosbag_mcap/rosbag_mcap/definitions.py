@@ -22,13 +22,29 @@ SEPARATOR = '=' * 80
 
 # Type names 'pkg/Type' or 'pkg/msg/Type' (also srv/ and action/ for service and action topics).
 _TYPENAME_RE = re.compile(
-    r'^([a-zA-Z][a-zA-Z0-9_]*)/(?:(msg|srv|action)/)?([a-zA-Z][a-zA-Z0-9_]*)$')
+    r'^([a-zA-Z][a-zA-Z0-9_]*)/(?:(msg|srv|action)/)?([a-zA-Z][a-zA-Z0-9_]*)$'
+)
 # The field type at the start of a .msg line ('pkg/Type' in 'pkg/Type[] name').
 _FIELD_TYPE_RE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
-PRIMITIVE_TYPES = frozenset({
-    'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16', 'uint16',
-    'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring',
-})
+PRIMITIVE_TYPES = frozenset(
+    {
+        'bool',
+        'byte',
+        'char',
+        'float32',
+        'float64',
+        'int8',
+        'uint8',
+        'int16',
+        'uint16',
+        'int32',
+        'uint32',
+        'int64',
+        'uint64',
+        'string',
+        'wstring',
+    }
+)
 
 MsgLookup = Callable[[str, str, str], str]
 """(package, namespace 'msg', type name) -> .msg text; raises DefinitionNotFoundError."""
@@ -78,7 +94,8 @@ def find_msg_file(package: str, namespace: str, name: str) -> Path:
             return candidate
     raise DefinitionNotFoundError(
         f'no {package}/{namespace}/{name}.msg under AMENT_PREFIX_PATH, {sys.prefix} '
-        f'or next to the Python package {package!r}')
+        f'or next to the Python package {package!r}'
+    )
 
 
 def read_msg_file(package: str, namespace: str, name: str) -> str:
@@ -111,7 +128,8 @@ class DefinitionCache:
         def append(dep_name: str, depth: int) -> str:
             if depth <= 0:
                 raise DefinitionNotFoundError(
-                    f'definition of {type_name} nests deeper than {self._max_depth} levels')
+                    f'definition of {type_name} nests deeper than {self._max_depth} levels'
+                )
             text, package = self._text(dep_name)
             parts = [text]
             for dep in msg_dependencies(text, package):

@@ -29,17 +29,19 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 
+from mlkm_ros.params import (
+    ConfigError,
+    declare_bool,
+    declare_number,
+    declare_string,
+    declare_strings,
+)
 from rosbag_mcap.ros_glue import (
     EXIT_BAD_PARAMETER,
     EXIT_OK,
     EXIT_PARTIAL,
     EXIT_REFUSED,
-    ConfigError,
     TopicSelection,
-    declare_bool,
-    declare_number,
-    declare_string,
-    declare_strings,
     import_message_type,
     profile_from_spec,
 )
@@ -79,40 +81,69 @@ class BagPlayer(Node):
         super().__init__('bag_player')
         bag = declare_string(self, 'bag', '', 'Bag directory or .mcap file to play (required).')
         self._rate = declare_number(
-            self, 'rate', 1.0,
+            self,
+            'rate',
+            1.0,
             'Playback speed factor: 1.0 = recorded timing, 2.0 = twice as fast; 0 = as fast '
             'as the middleware takes the messages (keep_all: blocks, never drops).',
-            0.0, 1000.0)
+            0.0,
+            1000.0,
+        )
         self._loop = declare_bool(self, 'loop', False, 'Play the bag again and again.')
         self._start_offset = declare_number(
-            self, 'start_offset', 0.0, 'Skip this much of the bag from its start [s].',
-            0.0, 1e9)
+            self, 'start_offset', 0.0, 'Skip this much of the bag from its start [s].', 0.0, 1e9
+        )
         topics = declare_strings(self, 'topics', 'Topics to play; empty: all (see regexes).')
-        include = declare_string(self, 'include_regex', '',
-                                 'Also play topics matching this Python regex (re.search).')
-        exclude = declare_string(self, 'exclude_regex', '',
-                                 'Never play topics matching this Python regex (re.search).')
+        include = declare_string(
+            self, 'include_regex', '', 'Also play topics matching this Python regex (re.search).'
+        )
+        exclude = declare_string(
+            self, 'exclude_regex', '', 'Never play topics matching this Python regex (re.search).'
+        )
         remap = declare_strings(
-            self, 'remap', "Topic renames 'from:=to' applied to recorded names "
-            '(ROS remapping -r from:=to works as well).')
+            self,
+            'remap',
+            "Topic renames 'from:=to' applied to recorded names "
+            '(ROS remapping -r from:=to works as well).',
+        )
         self._publish_clock = declare_bool(
-            self, 'publish_clock', False, 'Publish the bag time on /clock while playing.')
+            self, 'publish_clock', False, 'Publish the bag time on /clock while playing.'
+        )
         self._clock_rate = declare_number(
-            self, 'clock_rate', 40.0, 'How often /clock is published [Hz].', 0.1, 1000.0)
+            self, 'clock_rate', 40.0, 'How often /clock is published [Hz].', 0.1, 1000.0
+        )
         self._wait_for_subscribers = declare_number(
-            self, 'wait_for_subscribers', 0,
+            self,
+            'wait_for_subscribers',
+            0,
             'Before playing, wait until every played volatile topic has at least this many '
-            'matched subscriptions (or wait_timeout passes) [-].', 0, 1000, integer=True)
+            'matched subscriptions (or wait_timeout passes) [-].',
+            0,
+            1000,
+            integer=True,
+        )
         self._wait_timeout = declare_number(
-            self, 'wait_timeout', 30.0,
-            'Longest wait for subscribers before playing anyway [s].', 0.0, 1e6)
+            self,
+            'wait_timeout',
+            30.0,
+            'Longest wait for subscribers before playing anyway [s].',
+            0.0,
+            1e6,
+        )
         self._linger = declare_number(
-            self, 'linger', 0.0,
+            self,
+            'linger',
+            0.0,
             'Stay up this long after the last message, so that late subscribers still get '
-            'the latched (transient_local) topics [s]; -1 = until interrupted.', -1.0, 1e9)
+            'the latched (transient_local) topics [s]; -1 = until interrupted.',
+            -1.0,
+            1e9,
+        )
         if not bag:
-            raise ConfigError('parameter bag refused: it is required '
-                              '(--ros-args -p bag:=<bag directory or .mcap file>)')
+            raise ConfigError(
+                'parameter bag refused: it is required '
+                '(--ros-args -p bag:=<bag directory or .mcap file>)'
+            )
         remaps = parse_remaps(remap)
         try:
             selection = TopicSelection(tuple(topics), include, exclude, include_hidden=True)
@@ -140,11 +171,17 @@ class BagPlayer(Node):
             name = remaps.get(info.name, info.name)
             publisher = self.create_publisher(msg_type, name, qos)
             self._outputs[info.name] = _Output(
-                info.name, name, publisher, qos.reliability == ReliabilityPolicy.RELIABLE,
-                qos.durability == DurabilityPolicy.TRANSIENT_LOCAL)
+                info.name,
+                name,
+                publisher,
+                qos.reliability == ReliabilityPolicy.RELIABLE,
+                qos.durability == DurabilityPolicy.TRANSIENT_LOCAL,
+            )
         if not self._outputs:
-            raise RefusedError(f'{self._reader.path}: no playable topic (bag topics: '
-                               f'{sorted(self._reader.topics) or "none"})')
+            raise RefusedError(
+                f'{self._reader.path}: no playable topic (bag topics: '
+                f'{sorted(self._reader.topics) or "none"})'
+            )
         self._clock_pub = None
         if self._publish_clock:
             from rosgraph_msgs.msg import Clock
@@ -190,7 +227,8 @@ class BagPlayer(Node):
         total = sum(self._reader.topics[t].message_count for t in self._outputs)
         self.get_logger().info(
             f'playing {self._reader.path} ({total} messages on {len(self._outputs)} topics, '
-            f'rate {self._rate:g}{", loop" if self._loop else ""})')
+            f'rate {self._rate:g}{", loop" if self._loop else ""})'
+        )
         while not self._stop.is_set():
             self._play_once(first)
             if not self._loop or not rclpy.ok():
@@ -208,14 +246,18 @@ class BagPlayer(Node):
         deadline = time.monotonic() + self._wait_timeout
         while not self._stop.is_set():
             # Latched topics reach late subscribers anyway: only volatile ones are waited for.
-            missing = [o.name for o in self._outputs.values()
-                       if not o.latched and o.publisher.get_subscription_count() < wanted]
+            missing = [
+                o.name
+                for o in self._outputs.values()
+                if not o.latched and o.publisher.get_subscription_count() < wanted
+            ]
             if not missing:
                 return
             if time.monotonic() >= deadline:
                 self.get_logger().warning(
                     f'playing although fewer than {wanted} subscribers matched after '
-                    f'{self._wait_timeout:g} s on: {", ".join(sorted(missing))}')
+                    f'{self._wait_timeout:g} s on: {", ".join(sorted(missing))}'
+                )
                 return
             self._stop.wait(0.02)
 
@@ -249,7 +291,8 @@ class BagPlayer(Node):
                     self.publish_failures += 1
                     self.get_logger().error(
                         f'dropped a message on {output.name}: the middleware refused it for '
-                        f'{PUBLISH_RETRY_TIMEOUT:g} s ({exc})')
+                        f'{PUBLISH_RETRY_TIMEOUT:g} s ({exc})'
+                    )
                     return
                 # A keep_all writer whose subscribers do not keep up: let them catch up.
                 output.publisher.wait_for_all_acked(Duration(seconds=0.5))
@@ -261,7 +304,8 @@ class BagPlayer(Node):
                 if not output.publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT)):
                     self.get_logger().warning(
                         f'{output.name}: not every subscriber acknowledged within '
-                        f'{ACK_TIMEOUT:g} s')
+                        f'{ACK_TIMEOUT:g} s'
+                    )
 
     def _report(self) -> None:
         reader = self._reader
@@ -278,7 +322,8 @@ class BagPlayer(Node):
             self.exit_status = EXIT_PARTIAL
             self.get_logger().warning(
                 f'bag damaged: played the readable part, {self.played} messages{of}: '
-                f'{"; ".join(reader.problems)}')
+                f'{"; ".join(reader.problems)}'
+            )
         else:
             self.get_logger().info(f'played {self.played} messages{of} from {files}')
 

@@ -27,17 +27,19 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 from rclpy.task import Future
 
+from mlkm_ros.params import (
+    ConfigError,
+    declare_bool,
+    declare_number,
+    declare_string,
+    declare_strings,
+)
 from rosbag_mcap.definitions import DefinitionCache, DefinitionNotFoundError
 from rosbag_mcap.ros_glue import (
     EXIT_BAD_PARAMETER,
     EXIT_OK,
     EXIT_REFUSED,
-    ConfigError,
     TopicSelection,
-    declare_bool,
-    declare_number,
-    declare_string,
-    declare_strings,
     import_message_type,
     request_profile,
     spec_from_profile,
@@ -51,50 +53,96 @@ class BagRecorder(Node):
     def __init__(self) -> None:
         super().__init__('bag_recorder')
         output = declare_string(
-            self, 'output', '',
+            self,
+            'output',
+            '',
             'Bag directory to create (must not exist or be empty); '
-            'empty: bags/rosbag2_<local time> under the working directory.')
+            'empty: bags/rosbag2_<local time> under the working directory.',
+        )
         topics = declare_strings(
-            self, 'topics', 'Topics to record; empty (and no include_regex): all topics.')
+            self, 'topics', 'Topics to record; empty (and no include_regex): all topics.'
+        )
         include = declare_string(
-            self, 'include_regex', '',
-            'Also record topics whose name matches this Python regex (re.search).')
+            self,
+            'include_regex',
+            '',
+            'Also record topics whose name matches this Python regex (re.search).',
+        )
         exclude = declare_string(
-            self, 'exclude_regex', '',
-            'Never record topics whose name matches this Python regex (re.search).')
+            self,
+            'exclude_regex',
+            '',
+            'Never record topics whose name matches this Python regex (re.search).',
+        )
         hidden = declare_bool(
-            self, 'include_hidden_topics', False,
-            "Record hidden topics (a name token starting with '_') when recording all.")
+            self,
+            'include_hidden_topics',
+            False,
+            "Record hidden topics (a name token starting with '_') when recording all.",
+        )
         self._discovery_period = declare_number(
-            self, 'discovery_period', 0.5,
-            'Period of the graph poll that finds new topics [s].', 0.05, 60.0)
+            self,
+            'discovery_period',
+            0.5,
+            'Period of the graph poll that finds new topics [s].',
+            0.05,
+            60.0,
+        )
         self._flush_period = declare_number(
-            self, 'flush_period', 1.0,
+            self,
+            'flush_period',
+            1.0,
             'Period of closing the current MCAP chunk, so that a recording killed without '
-            'a clean stop keeps what was flushed [s]; 0 = only at the end.', 0.0, 3600.0)
+            'a clean stop keeps what was flushed [s]; 0 = only at the end.',
+            0.0,
+            3600.0,
+        )
         self._max_duration = declare_number(
-            self, 'max_duration', 0.0,
-            'Stop recording after this long [s]; 0 = until SIGINT or SIGTERM.', 0.0, 1e9)
+            self,
+            'max_duration',
+            0.0,
+            'Stop recording after this long [s]; 0 = until SIGINT or SIGTERM.',
+            0.0,
+            1e9,
+        )
         self._stop_drain_timeout = declare_number(
-            self, 'stop_drain_timeout', 30.0,
+            self,
+            'stop_drain_timeout',
+            30.0,
             'On stop, keep taking the messages already delivered until none arrives for '
             'stop_idle seconds, but at most this long [s]; a second SIGINT/SIGTERM cuts it '
-            'short.', 0.0, 3600.0)
+            'short.',
+            0.0,
+            3600.0,
+        )
         self._stop_idle = declare_number(
-            self, 'stop_idle', 0.5,
-            'On stop, the drain ends after this long without a new message [s].', 0.01, 60.0)
+            self,
+            'stop_idle',
+            0.5,
+            'On stop, the drain ends after this long without a new message [s].',
+            0.01,
+            60.0,
+        )
         compression = declare_string(
-            self, 'compression', 'zstd', 'MCAP chunk compression: zstd, lz4 or none.')
+            self, 'compression', 'zstd', 'MCAP chunk compression: zstd, lz4 or none.'
+        )
         chunk_size = declare_number(
-            self, 'chunk_size', 768 * 1024, 'MCAP chunk size before compression [byte].',
-            1024, 1 << 30, integer=True)
+            self,
+            'chunk_size',
+            768 * 1024,
+            'MCAP chunk size before compression [byte].',
+            1024,
+            1 << 30,
+            integer=True,
+        )
         try:
             self._selection = TopicSelection(tuple(topics), include, exclude, hidden)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         if compression not in ('zstd', 'lz4', 'none'):
-            raise ConfigError(f'parameter compression={compression!r} refused: '
-                              'expected zstd, lz4 or none')
+            raise ConfigError(
+                f'parameter compression={compression!r} refused: expected zstd, lz4 or none'
+            )
         self._output = Path(output) if output else Path('bags') / default_bag_name()
         self._writer = BagWriter(self._output, compression=compression, chunk_size=chunk_size)
         self._use_sim_time = bool(self.get_parameter('use_sim_time').value)
@@ -108,10 +156,14 @@ class BagRecorder(Node):
         self._discovery_timer = self.create_timer(self._discovery_period, self._discover)
         # Signal handlers only set a flag; this timer turns it into the end of spinning.
         self._stop_timer = self.create_timer(0.1, self._check_stop)
-        self._flush_timer = (self.create_timer(self._flush_period, self._writer.flush)
-                             if self._flush_period > 0 else None)
+        self._flush_timer = (
+            self.create_timer(self._flush_period, self._writer.flush)
+            if self._flush_period > 0
+            else None
+        )
         self.get_logger().info(
-            f'recording to {self._output.resolve()} ({self._describe_selection()})')
+            f'recording to {self._output.resolve()} ({self._describe_selection()})'
+        )
 
     # -- discovery and recording
 
@@ -154,13 +206,20 @@ class BagRecorder(Node):
         except (ImportError, DefinitionNotFoundError, ValueError, OSError) as exc:
             self._skip(topic, str(exc))
             return
-        type_hash = next((str(p.topic_type_hash) for p in publishers
-                          if str(p.topic_type_hash).startswith('RIHS01_')), '')
+        type_hash = next(
+            (
+                str(p.topic_type_hash)
+                for p in publishers
+                if str(p.topic_type_hash).startswith('RIHS01_')
+            ),
+            '',
+        )
         offered = [spec_from_profile(p.qos_profile) for p in publishers]
         qos = request_profile(publishers)
         try:
             subscription = self.create_subscription(
-                msg_type, topic, self._make_callback(topic), qos, raw=True)
+                msg_type, topic, self._make_callback(topic), qos, raw=True
+            )
         except Exception as exc:  # noqa: BLE001  (rclpy raises several types; report, go on)
             self._skip(topic, f'cannot subscribe: {exc}')
             return
@@ -168,7 +227,8 @@ class BagRecorder(Node):
         self._recording[topic] = subscription
         self.get_logger().info(
             f'recording {topic} [{type_name}] {qos.reliability.name.lower()}, '
-            f'{qos.durability.name.lower()}')
+            f'{qos.durability.name.lower()}'
+        )
 
     def _make_callback(self, topic: str):
         write = self._writer.write
@@ -176,8 +236,11 @@ class BagRecorder(Node):
         use_sim_time = self._use_sim_time
 
         def on_message(data: bytes, info: dict) -> None:
-            received = clock.now().nanoseconds if use_sim_time else (
-                info.get('received_timestamp') or time.time_ns())
+            received = (
+                clock.now().nanoseconds
+                if use_sim_time
+                else (info.get('received_timestamp') or time.time_ns())
+            )
             sent = info.get('source_timestamp') or received
             write(topic, data, received, sent, info.get('publication_sequence_number') or 0)
 
@@ -216,8 +279,9 @@ class BagRecorder(Node):
         last_message = now
         while now < deadline and now - last_message < self._stop_idle:
             if self._stop_signal is not None:
-                self.get_logger().warning('second stop signal: closing the bag without '
-                                          'taking the remaining messages')
+                self.get_logger().warning(
+                    'second stop signal: closing the bag without taking the remaining messages'
+                )
                 break
             before = self._writer.message_count
             rclpy.spin_once(self, timeout_sec=0.02)
@@ -228,7 +292,8 @@ class BagRecorder(Node):
             if now >= deadline:
                 self.get_logger().warning(
                     f'stop_drain_timeout ({self._stop_drain_timeout:g} s) reached while '
-                    'messages were still arriving; closing the bag')
+                    'messages were still arriving; closing the bag'
+                )
         self._stop_signal = first_signal
 
     def close(self) -> None:
@@ -240,7 +305,8 @@ class BagRecorder(Node):
         lines = [f'  {name}: {count}' for name, count in sorted(counts.items())]
         self.get_logger().info(
             f'bag written: {self._output.resolve()} ({info["message_count"]} messages, '
-            f'{len(counts)} topics)' + ('\n' + '\n'.join(lines) if lines else ''))
+            f'{len(counts)} topics)' + ('\n' + '\n'.join(lines) if lines else '')
+        )
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,18 +1,13 @@
-"""What the two nodes share that touches rclpy: QoS conversion, type import, parameters."""
+"""What the recorder and the player share that touches rclpy: QoS conversion, type import."""
 
 from __future__ import annotations
 
 import importlib
-import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.duration import Duration
-from rclpy.exceptions import ParameterException
-from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -80,9 +75,11 @@ def request_profile(publishers: Sequence[TopicEndpointInfo]) -> QoSProfile:
     History keep_all: the recorder never drops a message that reached it.
     """
     reliable = bool(publishers) and all(
-        p.qos_profile.reliability == ReliabilityPolicy.RELIABLE for p in publishers)
+        p.qos_profile.reliability == ReliabilityPolicy.RELIABLE for p in publishers
+    )
     latched = bool(publishers) and all(
-        p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in publishers)
+        p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in publishers
+    )
     return QoSProfile(
         history=HistoryPolicy.KEEP_ALL,
         depth=0,
@@ -101,8 +98,9 @@ def import_message_type(type_name: str) -> type:
         module = importlib.import_module(f'{package}.{namespace}')
         return getattr(module, name)
     except (ImportError, AttributeError) as exc:
-        raise ImportError(f'message type {type_name} is not available '
-                          f'(is its package built and sourced?): {exc}') from None
+        raise ImportError(
+            f'message type {type_name} is not available (is its package built and sourced?): {exc}'
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -115,13 +113,16 @@ class TopicSelection:
     include_hidden: bool = False
 
     def __post_init__(self) -> None:
-        for label, pattern in (('include_regex', self.include_regex),
-                               ('exclude_regex', self.exclude_regex)):
+        for label, pattern in (
+            ('include_regex', self.include_regex),
+            ('exclude_regex', self.exclude_regex),
+        ):
             try:
                 re.compile(pattern)
             except re.error as exc:
-                raise ValueError(f'{label} {pattern!r} is not a valid regular expression: '
-                                 f'{exc}') from None
+                raise ValueError(
+                    f'{label} {pattern!r} is not a valid regular expression: {exc}'
+                ) from None
 
     def selects(self, name: str) -> bool:
         if self.exclude_regex and re.search(self.exclude_regex, name):
@@ -135,61 +136,8 @@ class TopicSelection:
         return bool(self.include_regex) and re.search(self.include_regex, name) is not None
 
 
-class ConfigError(ValueError):
-    """A parameter value the node cannot work with; the message says which and why."""
-
-
 # Exit statuses shared by both executables.
 EXIT_OK = 0
 EXIT_REFUSED = 1  # the bag (or output) cannot be used; nothing played / recorded
 EXIT_BAD_PARAMETER = 2  # a parameter value is invalid
 EXIT_PARTIAL = 3  # bag_player: the bag is damaged; what was readable was played
-
-
-def declare_number(node: Node, name: str, default: float, description: str, low: float,
-                   high: float, *, integer: bool = False, read_only: bool = True) -> float:
-    """Declare a numeric parameter (int or float accepted on the command line); validate it."""
-    descriptor = ParameterDescriptor(description=description, read_only=read_only,
-                                     dynamic_typing=True)
-    if integer:
-        descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high))]
-    else:
-        descriptor.floating_point_range = [FloatingPointRange(from_value=float(low),
-                                                              to_value=float(high))]
-    kind = 'an integer' if integer else 'a number'
-    refusal = f'expected {kind} in [{low:g}, {high:g}] ({description})'
-    try:
-        node.declare_parameter(name, default, descriptor)
-    except ParameterException as exc:
-        raise ConfigError(f'parameter {name} refused: {refusal}; rclpy: {exc}') from None
-    value = node.get_parameter(name).value
-    ok = isinstance(value, int | float) and not isinstance(value, bool)
-    if ok and integer and isinstance(value, float):
-        ok = value.is_integer()
-    if not ok or not math.isfinite(value) or not low <= value <= high:
-        raise ConfigError(f'parameter {name}={value!r} refused: {refusal}')
-    return int(value) if integer else float(value)
-
-
-def declare_bool(node: Node, name: str, default: bool, description: str) -> bool:
-    node.declare_parameter(name, default,
-                           ParameterDescriptor(description=description, read_only=True))
-    return bool(node.get_parameter(name).value)
-
-
-def declare_string(node: Node, name: str, default: str, description: str) -> str:
-    node.declare_parameter(name, default,
-                           ParameterDescriptor(description=description, read_only=True))
-    return str(node.get_parameter(name).value)
-
-
-def declare_strings(node: Node, name: str, description: str) -> tuple[str, ...]:
-    """A read-only string-array parameter, empty unless set (``-p name:='[a, b]'``)."""
-    node.declare_parameter(name, Parameter.Type.STRING_ARRAY,
-                           ParameterDescriptor(description=description, read_only=True))
-    value = node.get_parameter_or(name, None)
-    if value is None or value.type_ == Parameter.Type.NOT_SET:
-        return ()
-    if value.type_ != Parameter.Type.STRING_ARRAY:
-        raise ConfigError(f'parameter {name} must be a list of strings, got {value.value!r}')
-    return tuple(v for v in value.value if v)

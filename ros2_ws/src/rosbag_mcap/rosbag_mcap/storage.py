@@ -46,8 +46,14 @@ _FOXY_INFINITES = {(0x7FFFFFFF, 0xFFFFFFFF), (0x7FFFFFFF, 0x7FFFFFFF)}
 _HISTORY = ('system_default', 'keep_last', 'keep_all', 'unknown')
 _RELIABILITY = ('system_default', 'reliable', 'best_effort', 'unknown', 'best_available')
 _DURABILITY = ('system_default', 'transient_local', 'volatile', 'unknown', 'best_available')
-_LIVELINESS = ('system_default', 'automatic', 'manual_by_node', 'manual_by_topic', 'unknown',
-               'best_available')
+_LIVELINESS = (
+    'system_default',
+    'automatic',
+    'manual_by_node',
+    'manual_by_topic',
+    'unknown',
+    'best_available',
+)
 
 
 class BagError(Exception):
@@ -127,23 +133,27 @@ def parse_qos(text: str | list | None) -> list[QosSpec]:
     for item in data:
         if not isinstance(item, dict):
             raise ValueError('offered_qos_profiles entry is not a mapping')
-        out.append(QosSpec(
-            history=_enum(item.get('history', 'unknown'), _HISTORY),
-            depth=int(item.get('depth', 0)),
-            reliability=_enum(item.get('reliability', 'unknown'), _RELIABILITY),
-            durability=_enum(item.get('durability', 'unknown'), _DURABILITY),
-            deadline=_time_ns(item.get('deadline', {})),
-            lifespan=_time_ns(item.get('lifespan', {})),
-            liveliness=_enum(item.get('liveliness', 'unknown'), _LIVELINESS),
-            liveliness_lease_duration=_time_ns(item.get('liveliness_lease_duration', {})),
-            avoid_ros_namespace_conventions=bool(
-                item.get('avoid_ros_namespace_conventions', False)),
-        ))
+        out.append(
+            QosSpec(
+                history=_enum(item.get('history', 'unknown'), _HISTORY),
+                depth=int(item.get('depth', 0)),
+                reliability=_enum(item.get('reliability', 'unknown'), _RELIABILITY),
+                durability=_enum(item.get('durability', 'unknown'), _DURABILITY),
+                deadline=_time_ns(item.get('deadline', {})),
+                lifespan=_time_ns(item.get('lifespan', {})),
+                liveliness=_enum(item.get('liveliness', 'unknown'), _LIVELINESS),
+                liveliness_lease_duration=_time_ns(item.get('liveliness_lease_duration', {})),
+                avoid_ros_namespace_conventions=bool(
+                    item.get('avoid_ros_namespace_conventions', False)
+                ),
+            )
+        )
     return out
 
 
-def replay_qos(profiles: Sequence[QosSpec], message_count: int = 1,
-               max_latched_depth: int = 1000) -> QosSpec:
+def replay_qos(
+    profiles: Sequence[QosSpec], message_count: int = 1, max_latched_depth: int = 1000
+) -> QosSpec:
     """The profile to offer when replaying, from the recorded offers (rosbag2's rule).
 
     Reliable only if every recorded publisher was reliable, transient_local only if every one
@@ -165,10 +175,15 @@ def replay_qos(profiles: Sequence[QosSpec], message_count: int = 1,
     else:
         depth, history = 0, 'keep_all'
     return QosSpec(
-        history=history, depth=depth,
+        history=history,
+        depth=depth,
         reliability='reliable' if reliable else 'best_effort',
         durability='transient_local' if latched else 'volatile',
-        deadline=0, lifespan=0, liveliness='system_default', liveliness_lease_duration=0)
+        deadline=0,
+        lifespan=0,
+        liveliness='system_default',
+        liveliness_lease_duration=0,
+    )
 
 
 # --------------------------------------------------------------------------- metadata
@@ -186,12 +201,19 @@ class TopicInfo:
     serialization_format: str = MESSAGE_ENCODING
 
 
-def metadata_dict(*, files: Sequence[dict], topics: Sequence[TopicInfo],
-                  custom_data: dict[str, str] | None = None) -> dict:
+def metadata_dict(
+    *,
+    files: Sequence[dict],
+    topics: Sequence[TopicInfo],
+    custom_data: dict[str, str] | None = None,
+) -> dict:
     """The ``rosbag2_bagfile_information`` mapping (rosbag2 field names and order)."""
     starts = [f['starting_time']['nanoseconds_since_epoch'] for f in files if f['message_count']]
-    ends = [f['starting_time']['nanoseconds_since_epoch'] + f['duration']['nanoseconds']
-            for f in files if f['message_count']]
+    ends = [
+        f['starting_time']['nanoseconds_since_epoch'] + f['duration']['nanoseconds']
+        for f in files
+        if f['message_count']
+    ]
     start = min(starts) if starts else 0
     return {
         'version': METADATA_VERSION,
@@ -223,8 +245,13 @@ def metadata_dict(*, files: Sequence[dict], topics: Sequence[TopicInfo],
 
 def dump_metadata(info: dict) -> str:
     """YAML text of metadata.yaml for a ``rosbag2_bagfile_information`` mapping."""
-    return yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False,
-                          default_flow_style=False, allow_unicode=True, width=1000)
+    return yaml.safe_dump(
+        {'rosbag2_bagfile_information': info},
+        sort_keys=False,
+        default_flow_style=False,
+        allow_unicode=True,
+        width=1000,
+    )
 
 
 def load_metadata(path: Path) -> dict:
@@ -240,8 +267,7 @@ def load_metadata(path: Path) -> dict:
     except yaml.YAMLError as exc:
         raise BagError(f'{path}: bag metadata is not valid YAML: {exc}') from None
     except (KeyError, TypeError, ValueError) as exc:
-        raise BagError(f'{path}: not rosbag2 bag metadata ({type(exc).__name__}: {exc})'
-                       ) from None
+        raise BagError(f'{path}: not rosbag2 bag metadata ({type(exc).__name__}: {exc})') from None
     if version > 10:
         raise BagError(f'{path}: bag metadata version {version} is newer than supported (10)')
     return info
@@ -264,15 +290,25 @@ class BagWriter:
     close keeps everything written up to the last flush readable.
     """
 
-    def __init__(self, directory: str | os.PathLike, *, compression: str = 'zstd',
-                 chunk_size: int = DEFAULT_CHUNK_SIZE,
-                 custom_data: dict[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        directory: str | os.PathLike,
+        *,
+        compression: str = 'zstd',
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        custom_data: dict[str, str] | None = None,
+    ) -> None:
         self.directory = Path(directory)
-        if self.directory.exists() and (not self.directory.is_dir()
-                                        or any(self.directory.iterdir())):
+        if self.directory.exists() and (
+            not self.directory.is_dir() or any(self.directory.iterdir())
+        ):
             raise BagError(f'{self.directory}: output exists and is not an empty directory')
-        compressions = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
-                        'none': CompressionType.NONE, '': CompressionType.NONE}
+        compressions = {
+            'zstd': CompressionType.ZSTD,
+            'lz4': CompressionType.LZ4,
+            'none': CompressionType.NONE,
+            '': CompressionType.NONE,
+        }
         if compression not in compressions:
             raise BagError(f'unknown chunk compression {compression!r} (zstd, lz4, none)')
         self.directory.mkdir(parents=True, exist_ok=True)
@@ -280,8 +316,9 @@ class BagWriter:
         self.path = self.directory / self.file_name
         self._custom_data = custom_data
         self._stream = open(self.path, 'wb')  # noqa: SIM115 (closed in close())
-        self._mcap = Writer(self._stream, chunk_size=chunk_size,
-                            compression=compressions[compression])
+        self._mcap = Writer(
+            self._stream, chunk_size=chunk_size, compression=compressions[compression]
+        )
         self._mcap.start(profile=PROFILE, library=LIBRARY)
         self._topics: dict[str, _WriterTopic] = {}
         self._schemas: dict[str, int] = {}
@@ -297,31 +334,54 @@ class BagWriter:
     def has_topic(self, name: str) -> bool:
         return name in self._topics
 
-    def add_topic(self, name: str, type_name: str, definition: str,
-                  offered_qos: Sequence[QosSpec] = (), type_hash: str = '') -> None:
+    def add_topic(
+        self,
+        name: str,
+        type_name: str,
+        definition: str,
+        offered_qos: Sequence[QosSpec] = (),
+        type_hash: str = '',
+    ) -> None:
         """Register a topic (one channel); its schema is shared by all topics of the type."""
         if name in self._topics:
             raise BagError(f'{self.path}: topic {name} added twice')
         schema_id = self._schemas.get(type_name)
         if schema_id is None:
             schema_id = self._mcap.register_schema(
-                name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode('utf-8'))
+                name=type_name, encoding=SCHEMA_ENCODING, data=definition.encode('utf-8')
+            )
             self._schemas[type_name] = schema_id
-        info = TopicInfo(name=name, type=type_name, offered_qos=list(offered_qos),
-                         type_hash=type_hash)
+        info = TopicInfo(
+            name=name, type=type_name, offered_qos=list(offered_qos), type_hash=type_hash
+        )
         channel_id = self._mcap.register_channel(
-            topic=name, message_encoding=MESSAGE_ENCODING, schema_id=schema_id,
-            metadata={'offered_qos_profiles': qos_to_yaml(info.offered_qos),
-                      'topic_type_hash': type_hash})
+            topic=name,
+            message_encoding=MESSAGE_ENCODING,
+            schema_id=schema_id,
+            metadata={
+                'offered_qos_profiles': qos_to_yaml(info.offered_qos),
+                'topic_type_hash': type_hash,
+            },
+        )
         self._topics[name] = _WriterTopic(info, channel_id)
 
-    def write(self, topic: str, data: bytes, log_time: int, publish_time: int | None = None,
-              sequence: int = 0) -> None:
+    def write(
+        self,
+        topic: str,
+        data: bytes,
+        log_time: int,
+        publish_time: int | None = None,
+        sequence: int = 0,
+    ) -> None:
         """Append one serialized message (``log_time``/``publish_time`` in ns)."""
         entry = self._topics[topic]
-        self._mcap.add_message(channel_id=entry.channel_id, log_time=log_time, data=data,
-                               publish_time=log_time if publish_time is None else publish_time,
-                               sequence=sequence & 0xFFFFFFFF)
+        self._mcap.add_message(
+            channel_id=entry.channel_id,
+            log_time=log_time,
+            data=data,
+            publish_time=log_time if publish_time is None else publish_time,
+            sequence=sequence & 0xFFFFFFFF,
+        )
         entry.info.message_count += 1
         self.message_count += 1
         if self._first_ns is None or log_time < self._first_ns:
@@ -335,14 +395,19 @@ class BagWriter:
 
     def metadata(self) -> dict:
         start = self._first_ns or 0
-        files = [{
-            'path': self.file_name,
-            'starting_time': {'nanoseconds_since_epoch': start},
-            'duration': {'nanoseconds': (self._last_ns - start) if self._last_ns else 0},
-            'message_count': self.message_count,
-        }]
-        return metadata_dict(files=files, topics=[t.info for t in self._topics.values()],
-                             custom_data=self._custom_data)
+        files = [
+            {
+                'path': self.file_name,
+                'starting_time': {'nanoseconds_since_epoch': start},
+                'duration': {'nanoseconds': (self._last_ns - start) if self._last_ns else 0},
+                'message_count': self.message_count,
+            }
+        ]
+        return metadata_dict(
+            files=files,
+            topics=[t.info for t in self._topics.values()],
+            custom_data=self._custom_data,
+        )
 
     def close(self) -> dict:
         """Finish the MCAP and write metadata.yaml; returns the metadata mapping."""
@@ -352,8 +417,9 @@ class BagWriter:
         self.closed = True
         try:
             # As rosbag2_storage_mcap: the BagMetadata mapping itself, without the root key.
-            serialized = yaml.safe_dump(info, sort_keys=False, default_flow_style=False,
-                                        allow_unicode=True, width=1000)
+            serialized = yaml.safe_dump(
+                info, sort_keys=False, default_flow_style=False, allow_unicode=True, width=1000
+            )
             self._mcap.add_metadata('rosbag2', {'serialized_metadata': serialized})
             self._mcap.finish()
         finally:
@@ -402,8 +468,10 @@ class _FileIndex:
 
 def _describe(exc: BaseException) -> str:
     text = str(exc).strip()
-    known = {'EndOfFile': 'the file ends in the middle of a record',
-             'InvalidMagic': 'not an MCAP file (bad magic bytes)'}.get(type(exc).__name__)
+    known = {
+        'EndOfFile': 'the file ends in the middle of a record',
+        'InvalidMagic': 'not an MCAP file (bad magic bytes)',
+    }.get(type(exc).__name__)
     if known:
         return known
     if isinstance(exc, struct.error):
@@ -416,9 +484,13 @@ def _topic_from_channel(channel: Channel, schema: Schema | None) -> TopicInfo:
         qos = parse_qos(channel.metadata.get('offered_qos_profiles', ''))
     except (ValueError, yaml.YAMLError):
         qos = []
-    return TopicInfo(name=channel.topic, type=schema.name if schema else '',
-                     offered_qos=qos, type_hash=channel.metadata.get('topic_type_hash', ''),
-                     serialization_format=channel.message_encoding)
+    return TopicInfo(
+        name=channel.topic,
+        type=schema.name if schema else '',
+        offered_qos=qos,
+        type_hash=channel.metadata.get('topic_type_hash', ''),
+        serialization_format=channel.message_encoding,
+    )
 
 
 # Damaged data can make the mcap library fail in many ways (struct.error, zstd errors, ...).
@@ -477,7 +549,8 @@ class BagReader:
                 raise BagError(
                     f'{meta_path}: whole-file compression '
                     f'({self.metadata.get("compression_format")}) is not supported; '
-                    'decompress the files first')
+                    'decompress the files first'
+                )
             files = [path / Path(p).name for p in self.metadata['relative_file_paths']]
             missing = [str(f) for f in files if not f.is_file()]
             if missing:
@@ -487,8 +560,10 @@ class BagReader:
         if not files:
             raise BagError(f'{path}: no {METADATA_FILE} and no .mcap file in the directory')
         if not meta_path.is_file():
-            self.problems.append(f'{meta_path}: missing (unfinished recording?); '
-                                 f'reading {", ".join(f.name for f in files)} directly')
+            self.problems.append(
+                f'{meta_path}: missing (unfinished recording?); '
+                f'reading {", ".join(f.name for f in files)} directly'
+            )
         return files
 
     def _index_file(self, path: Path) -> _FileIndex:
@@ -532,7 +607,8 @@ class BagReader:
                         channels[record.id] = record
                         if record.topic not in topics:
                             topics[record.topic] = _topic_from_channel(
-                                record, schemas.get(record.schema_id))
+                                record, schemas.get(record.schema_id)
+                            )
                     elif isinstance(record, Message):
                         channel = channels.get(record.channel_id)
                         if channel is None:
@@ -542,15 +618,23 @@ class BagReader:
                         if start is None or record.log_time < start:
                             start = record.log_time
         except _READ_ERRORS as exc:
-            problem = (f'{path}: truncated or corrupt ({why}; reading stopped: '
-                       f'{_describe(exc)}); {count} messages are readable')
+            problem = (
+                f'{path}: truncated or corrupt ({why}; reading stopped: '
+                f'{_describe(exc)}); {count} messages are readable'
+            )
         if problem is None:
             problem = f'{path}: {why}; all {count} messages are readable by a full scan'
         if count == 0 and not topics:
             raise BagError(f'{path}: nothing readable ({problem.split("(", 1)[1]}')
         self.problems.append(problem)
-        return _FileIndex(path=path, indexed=False, topics=topics, start_time=start,
-                          readable_count=count, problem=problem)
+        return _FileIndex(
+            path=path,
+            indexed=False,
+            topics=topics,
+            start_time=start,
+            readable_count=count,
+            problem=problem,
+        )
 
     def _merge_metadata_topics(self) -> None:
         if self.metadata is None:
@@ -569,9 +653,13 @@ class BagReader:
             if known is None:
                 # Listed in metadata.yaml but no channel readable (lost in a damaged part).
                 self.topics[name] = TopicInfo(
-                    name=name, type=type_name, offered_qos=qos,
-                    type_hash=meta.get('type_description_hash', '') or '', message_count=0,
-                    serialization_format=meta.get('serialization_format', MESSAGE_ENCODING))
+                    name=name,
+                    type=type_name,
+                    offered_qos=qos,
+                    type_hash=meta.get('type_description_hash', '') or '',
+                    message_count=0,
+                    serialization_format=meta.get('serialization_format', MESSAGE_ENCODING),
+                )
             else:
                 if not known.offered_qos:
                     known.offered_qos = qos
@@ -609,8 +697,9 @@ class BagReader:
         starts = [f.start_time for f in self._files if f.start_time is not None]
         return min(starts) if starts else None
 
-    def messages(self, topics: Iterable[str] | None = None,
-                 start_time: int | None = None) -> Iterator[BagMessage]:
+    def messages(
+        self, topics: Iterable[str] | None = None, start_time: int | None = None
+    ) -> Iterator[BagMessage]:
         """Readable messages, file by file (log-time order within an indexed file).
 
         Damage found while reading (for instance a chunk whose CRC does not match) ends the
@@ -620,8 +709,9 @@ class BagReader:
         for index in self._files:
             yield from self._file_messages(index, wanted, start_time)
 
-    def _file_messages(self, index: _FileIndex, wanted: set[str] | None,
-                       start_time: int | None) -> Iterator[BagMessage]:
+    def _file_messages(
+        self, index: _FileIndex, wanted: set[str] | None, start_time: int | None
+    ) -> Iterator[BagMessage]:
         path = index.path
         emitted = 0
         try:
@@ -630,12 +720,19 @@ class BagReader:
                     reader = SeekingReader(stream, validate_crcs=True)
                     iterator = reader.iter_messages(
                         topics=None if wanted is None else sorted(wanted),
-                        starting_at=start_time, log_time_order=True)
+                        starting_at=start_time,
+                        log_time_order=True,
+                    )
                     for schema, channel, message in iterator:
                         emitted += 1
-                        yield BagMessage(channel.topic, schema.name if schema else '',
-                                         message.data, message.log_time,
-                                         message.publish_time, path)
+                        yield BagMessage(
+                            channel.topic,
+                            schema.name if schema else '',
+                            message.data,
+                            message.log_time,
+                            message.publish_time,
+                            path,
+                        )
                     return
                 schemas: dict[int, Schema] = {}
                 channels: dict[int, Channel] = {}
@@ -657,13 +754,20 @@ class BagReader:
                             continue
                         schema = schemas.get(channel.schema_id)
                         emitted += 1
-                        yield BagMessage(channel.topic, schema.name if schema else '',
-                                         record.data, record.log_time, record.publish_time,
-                                         path)
+                        yield BagMessage(
+                            channel.topic,
+                            schema.name if schema else '',
+                            record.data,
+                            record.log_time,
+                            record.publish_time,
+                            path,
+                        )
         except _READ_ERRORS as exc:
             if index.indexed:
-                self.problems.append(f'{path}: corrupt ({_describe(exc)}) after '
-                                     f'{emitted} messages; the rest of the file is skipped')
+                self.problems.append(
+                    f'{path}: corrupt ({_describe(exc)}) after '
+                    f'{emitted} messages; the rest of the file is skipped'
+                )
             # A scanned file stops where the scan stopped: already reported.
 
 

@@ -52,8 +52,9 @@ def features(dataset: Dataset) -> np.ndarray:
     return np.column_stack([p, t, v, v * t, v * v * t, v * t * t])
 
 
-def dnn_split(dataset: Dataset, n_train: int, seed: int = 0, max_iter: int = MAX_ITER
-              ) -> DnnResult:
+def dnn_split(
+    dataset: Dataset, n_train: int, seed: int = 0, max_iter: int = MAX_ITER
+) -> DnnResult:
     """Train on the first ``n_train`` sensors' labelled detections, test on the others.
 
     ``seed`` is the network's ``random_state`` (weight initialisation).
@@ -69,9 +70,15 @@ def dnn_split(dataset: Dataset, n_train: int, seed: int = 0, max_iter: int = MAX
     is_test = ~np.isin(d.sensor_index, train_sensors)
     x = features(dataset)
     scaler = StandardScaler().fit(x[is_train])
-    net = MLPClassifier(hidden_layer_sizes=(8, 8), activation='relu', solver='adam',
-                        learning_rate_init=LEARNING_RATE, batch_size=int(is_train.sum()),
-                        max_iter=max_iter, random_state=seed)
+    net = MLPClassifier(
+        hidden_layer_sizes=(8, 8),
+        activation='relu',
+        solver='adam',
+        learning_rate_init=LEARNING_RATE,
+        batch_size=int(is_train.sum()),
+        max_iter=max_iter,
+        random_state=seed,
+    )
     with warnings.catch_warnings():
         warnings.simplefilter('ignore', ConvergenceWarning)
         net.fit(scaler.transform(x[is_train]), d.target[is_train])

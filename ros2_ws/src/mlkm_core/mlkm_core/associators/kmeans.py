@@ -34,8 +34,9 @@ def canonical_order(detections: Detections) -> np.ndarray:
     return np.lexsort((detections.velocity, detections.stamp, detections.sensor_index))
 
 
-def kmeans_labels(points: np.ndarray, k: int, init: str, seed: int) -> tuple[np.ndarray,
-                                                                               np.ndarray]:
+def kmeans_labels(
+    points: np.ndarray, k: int, init: str, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
     """scikit-learn K-means, one run; returns (labels, centers). Handles tiny inputs."""
     n = points.shape[0]
     if n == 0:
@@ -55,8 +56,9 @@ class _KMeansAssociator(Associator):
         order = canonical_order(detections)
         d = detections.subset(order)
         t = preprocess(layout, d) if self.preprocessed else d.stamp
-        labels, _ = kmeans_labels(np.column_stack([d.velocity, t]), n_targets, self.init,
-                                  self.config.seed)
+        labels, _ = kmeans_labels(
+            np.column_stack([d.velocity, t]), n_targets, self.init, self.config.seed
+        )
         out = np.empty(len(detections), np.int64)
         out[order] = labels
         return out

@@ -27,11 +27,12 @@ def by_sensor(detections: Detections, n_sensors: int) -> list[np.ndarray]:
     """Indices of the detections of each sensor, sorted by (stamp, velocity)."""
     order = np.lexsort((detections.velocity, detections.stamp, detections.sensor_index))
     bounds = np.searchsorted(detections.sensor_index[order], np.arange(n_sensors + 1))
-    return [order[bounds[s]:bounds[s + 1]] for s in range(n_sensors)]
+    return [order[bounds[s] : bounds[s + 1]] for s in range(n_sensors)]
 
 
-def gate_pairs(centre: np.ndarray, half_width: np.ndarray, values: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
+def gate_pairs(
+    centre: np.ndarray, half_width: np.ndarray, values: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """All (i, j) with |values[j] - centre[i]| <= half_width[i]; ``values`` need not be sorted."""
     if centre.size == 0 or values.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
@@ -47,8 +48,9 @@ def gate_pairs(centre: np.ndarray, half_width: np.ndarray, values: np.ndarray
     return rows, cols
 
 
-def match_sparse(rows: np.ndarray, cols: np.ndarray, weight: np.ndarray, n_rows: int,
-                 n_cols: int) -> tuple[np.ndarray, np.ndarray]:
+def match_sparse(
+    rows: np.ndarray, cols: np.ndarray, weight: np.ndarray, n_rows: int, n_cols: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Min-weight one-to-one matching over candidate edges with ``weight`` (< 0 to be useful).
 
     Returns matched (rows, cols). Edges with weight >= 0 never improve on leaving both ends
@@ -59,8 +61,9 @@ def match_sparse(rows: np.ndarray, cols: np.ndarray, weight: np.ndarray, n_rows:
     if rows.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     # keep the best edge per (row, col) pair
-    graph = coo_matrix((np.ones(rows.size), (rows, n_rows + cols)),
-                       shape=(n_rows + n_cols, n_rows + n_cols))
+    graph = coo_matrix(
+        (np.ones(rows.size), (rows, n_rows + cols)), shape=(n_rows + n_cols, n_rows + n_cols)
+    )
     n_comp, comp = connected_components(graph, directed=False)
     edge_comp = comp[rows]
     order = np.argsort(edge_comp, kind='stable')

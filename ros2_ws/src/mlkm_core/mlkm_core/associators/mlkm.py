@@ -100,8 +100,7 @@ class ErrorReport:
         return self.size | self.duplicate | self.order
 
 
-def detect_errors(sensor_index: np.ndarray, stamp: np.ndarray, labels: np.ndarray
-                  ) -> ErrorReport:
+def detect_errors(sensor_index: np.ndarray, stamp: np.ndarray, labels: np.ndarray) -> ErrorReport:
     """Apply the paper's three error-detection rules to one segment's clustering."""
     sensor_index = np.asarray(sensor_index, np.int64)
     if sensor_index.size == 0:
@@ -132,17 +131,25 @@ def _nearest(reference: np.ndarray, query: np.ndarray) -> np.ndarray:
     """Index into ``reference`` of the value nearest to each ``query`` value."""
     order = np.argsort(reference, kind='stable')
     ref = reference[order]
-    pos = np.clip(np.searchsorted(ref, query), 1, ref.size - 1) if ref.size > 1 else (
-        np.zeros(query.size, np.int64))
+    pos = (
+        np.clip(np.searchsorted(ref, query), 1, ref.size - 1)
+        if ref.size > 1
+        else (np.zeros(query.size, np.int64))
+    )
     if ref.size > 1:
         left = ref[pos - 1]
         pos = np.where(np.abs(query - left) <= np.abs(ref[pos] - query), pos - 1, pos)
     return order[pos]
 
 
-def correct_errors(positions: np.ndarray, sensor_index: np.ndarray, stamp: np.ndarray,
-                   velocity: np.ndarray, labels: np.ndarray, flagged: frozenset[int]
-                   ) -> np.ndarray:
+def correct_errors(
+    positions: np.ndarray,
+    sensor_index: np.ndarray,
+    stamp: np.ndarray,
+    velocity: np.ndarray,
+    labels: np.ndarray,
+    flagged: frozenset[int],
+) -> np.ndarray:
     """Re-associate the flagged sensors' detections by nearest predicted arrival time.
 
     ``positions`` are the layout positions; returns new labels (see readings 6 in the module
@@ -188,23 +195,28 @@ class SegmentClusters:
     errors: ErrorReport  # what Layer 2 detected (also filled when correction is off)
 
 
-def solve_segment(layout: Layout, detections: Detections, n_targets: int, seed: int,
-                  error_correction: bool) -> SegmentClusters:
+def solve_segment(
+    layout: Layout, detections: Detections, n_targets: int, seed: int, error_correction: bool
+) -> SegmentClusters:
     """Layers 1 and 2 on the detections of one segment."""
     order = canonical_order(detections)
     d = detections.subset(order)
-    labels, _ = kmeans_labels(np.column_stack([d.velocity, d.stamp]), n_targets, 'k-means++',
-                              seed)
+    labels, _ = kmeans_labels(np.column_stack([d.velocity, d.stamp]), n_targets, 'k-means++', seed)
     errors = detect_errors(d.sensor_index, d.stamp, labels)
     if error_correction:
-        labels = correct_errors(layout.positions, d.sensor_index, d.stamp, d.velocity, labels,
-                                errors.flagged)
+        labels = correct_errors(
+            layout.positions, d.sensor_index, d.stamp, d.velocity, labels, errors.flagged
+        )
     used, labels = np.unique(labels, return_inverse=True)
     pos = layout.positions[d.sensor_index]
     cnt = np.bincount(labels, minlength=used.size).astype(float)
-    cent = np.column_stack([np.bincount(labels, w, minlength=used.size) / cnt
-                            for w in (d.velocity, d.stamp, pos)]) if used.size else (
-        np.zeros((0, 3)))
+    cent = (
+        np.column_stack(
+            [np.bincount(labels, w, minlength=used.size) / cnt for w in (d.velocity, d.stamp, pos)]
+        )
+        if used.size
+        else (np.zeros((0, 3)))
+    )
     by_time = np.argsort(cent[:, 1], kind='stable')
     rank = np.empty_like(by_time)
     rank[by_time] = np.arange(by_time.size)
@@ -226,8 +238,8 @@ def match_segments(parts: list[SegmentClusters], ref_position: float) -> list[np
     tproj = back_project(cent[:, 1], cent[:, 0], cent[:, 2], ref_position)
     points = np.column_stack([cent[:, 0], tproj])
     n_seeds = next(n for n in sizes if n > 0)
-    start = sum(sizes[:next(e for e, n in enumerate(sizes) if n > 0)])
-    seeds = points[start:start + n_seeds]
+    start = sum(sizes[: next(e for e, n in enumerate(sizes) if n > 0)])
+    seeds = points[start : start + n_seeds]
     if n_seeds == points.shape[0]:
         tracks = np.arange(n_seeds, dtype=np.int64)
     else:
@@ -260,10 +272,12 @@ class MLKM(Associator):
     name = 'mlkm'
     error_correction = True
 
-    def solve_segment(self, layout: Layout, detections: Detections, n_targets: int
-                      ) -> SegmentClusters:
-        return solve_segment(layout, detections, n_targets, self.config.seed,
-                             self.error_correction)
+    def solve_segment(
+        self, layout: Layout, detections: Detections, n_targets: int
+    ) -> SegmentClusters:
+        return solve_segment(
+            layout, detections, n_targets, self.config.seed, self.error_correction
+        )
 
     def label_parts(self, layout: Layout, solved: list[SegmentClusters]) -> np.ndarray:
         """Layer 3 over solved segments; track id of each detection in segment order."""
@@ -273,8 +287,10 @@ class MLKM(Associator):
         return np.concatenate([t[p.labels] for t, p in zip(tracks, solved)]).astype(np.int64)
 
     def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
-        idx = [np.flatnonzero(np.isin(detections.sensor_index, seg))
-               for seg in segments(layout.n_sensors, self.config.segment_size)]
+        idx = [
+            np.flatnonzero(np.isin(detections.sensor_index, seg))
+            for seg in segments(layout.n_sensors, self.config.segment_size)
+        ]
         solved = [self.solve_segment(layout, detections.subset(i), n_targets) for i in idx]
         labels = self.label_parts(layout, solved)
         out = np.full(len(detections), -1, np.int64)

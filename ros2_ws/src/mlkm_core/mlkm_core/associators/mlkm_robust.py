@@ -38,9 +38,16 @@ from mlkm_core.associators.tracker import MotionParams, PairwiseModel, estimate_
 from mlkm_core.types import Detections, Layout, segments
 
 
-def _pair_weights(p: MotionParams, x1: np.ndarray, t1: np.ndarray, u1: np.ndarray, x2: float,
-                  t2: np.ndarray, u2: np.ndarray, skipped: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _pair_weights(
+    p: MotionParams,
+    x1: np.ndarray,
+    t1: np.ndarray,
+    u1: np.ndarray,
+    x2: float,
+    t2: np.ndarray,
+    u2: np.ndarray,
+    skipped: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dense gated weights between n1 'ends' and n2 detections at position x2 (or x2 < x1)."""
     n1, n2 = t1.size, t2.size
     r = np.repeat(np.arange(n1), n2)
@@ -58,8 +65,9 @@ def _pair_weights(p: MotionParams, x1: np.ndarray, t1: np.ndarray, u1: np.ndarra
     return r, c, np.where(d2 <= p.gate, w, 0.0)
 
 
-def implausible_links(positions: np.ndarray, d: Detections, labels: np.ndarray,
-                      p: MotionParams) -> frozenset[int]:
+def implausible_links(
+    positions: np.ndarray, d: Detections, labels: np.ndarray, p: MotionParams
+) -> frozenset[int]:
     """Rule 4 (added): a sensor whose detection is not a plausible successor of the previous
     detection of its cluster (pairwise travel-time and speed cost beyond the 6-sigma gate)."""
     order = np.lexsort((d.sensor_index, labels))
@@ -80,8 +88,13 @@ def implausible_links(positions: np.ndarray, d: Detections, labels: np.ndarray,
     return frozenset(int(s) for s in np.unique(d.sensor_index[b[bad]]))
 
 
-def correct_by_assignment(positions: np.ndarray, d: Detections, labels: np.ndarray,
-                          flagged: frozenset[int], p: MotionParams) -> np.ndarray:
+def correct_by_assignment(
+    positions: np.ndarray,
+    d: Detections,
+    labels: np.ndarray,
+    flagged: frozenset[int],
+    p: MotionParams,
+) -> np.ndarray:
     """Layer 2 correction of the flagged sensors, one-to-one with dummies (module doc)."""
     labels = labels.copy()
     if not flagged or labels.size == 0:
@@ -104,8 +117,11 @@ def correct_by_assignment(positions: np.ndarray, d: Detections, labels: np.ndarr
         processed sensors (a cluster missed at the neighbouring sensor is still reachable)."""
         nonlocal next_label
         mj = members[j]
-        pool = np.concatenate([members[k] for k in processed]) if processed.size else (
-            np.zeros(0, np.int64))
+        pool = (
+            np.concatenate([members[k] for k in processed])
+            if processed.size
+            else (np.zeros(0, np.int64))
+        )
         if pool.size:
             key = d.sensor_index[pool] if backward else -d.sensor_index[pool]
             pool = pool[np.argsort(key, kind='stable')]
@@ -113,8 +129,16 @@ def correct_by_assignment(positions: np.ndarray, d: Detections, labels: np.ndarr
             ends = pool[first]
             skipped = np.abs(d.sensor_index[ends] - sensors[j]) - 1
             x_end = positions[d.sensor_index[ends]]
-            r, c, w = _pair_weights(p, x_end, d.stamp[ends], u[ends],
-                                    float(positions[sensors[j]]), d.stamp[mj], u[mj], skipped)
+            r, c, w = _pair_weights(
+                p,
+                x_end,
+                d.stamp[ends],
+                u[ends],
+                float(positions[sensors[j]]),
+                d.stamp[mj],
+                u[mj],
+                skipped,
+            )
             mr_i, mc_i = match_sparse(r, c, w, ends.size, mj.size)
         else:
             mr_i = mc_i = np.zeros(0, np.int64)
@@ -138,11 +162,13 @@ def correct_by_assignment(positions: np.ndarray, d: Detections, labels: np.ndarr
 class RobustMLKM(Associator):
     name = 'mlkm_robust'
 
-    def solve_segment(self, layout: Layout, d: Detections, n_targets: int, p: MotionParams
-                      ) -> np.ndarray:
+    def solve_segment(
+        self, layout: Layout, d: Detections, n_targets: int, p: MotionParams
+    ) -> np.ndarray:
         """Layers 1 and 2 on one segment (``d`` in canonical order): local cluster labels."""
-        labels, _ = kmeans_labels(np.column_stack([d.velocity, d.stamp]), n_targets,
-                                  'k-means++', self.config.seed)
+        labels, _ = kmeans_labels(
+            np.column_stack([d.velocity, d.stamp]), n_targets, 'k-means++', self.config.seed
+        )
         errors = detect_errors(d.sensor_index, d.stamp, labels)
         flagged = errors.flagged | implausible_links(layout.positions, d, labels, p)
         labels = correct_by_assignment(layout.positions, d, labels, flagged, p)
@@ -186,9 +212,16 @@ class RobustMLKM(Associator):
                     a_sel = active[ahead]
                     a_d = ends[a_sel]
                     skipped = np.maximum(s - 1 - d.sensor_index[a_d], 0)
-                    r, c, w = _pair_weights(p, pos[d.sensor_index[a_d]], d.stamp[a_d], u[a_d],
-                                            float(pos[s]), d.stamp[first[cl]], u[first[cl]],
-                                            skipped)
+                    r, c, w = _pair_weights(
+                        p,
+                        pos[d.sensor_index[a_d]],
+                        d.stamp[a_d],
+                        u[a_d],
+                        float(pos[s]),
+                        d.stamp[first[cl]],
+                        u[first[cl]],
+                        skipped,
+                    )
                     taken = np.array([ids[x] for x in range(n_c) if ids[x] >= 0])
                     if taken.size:
                         w = np.where(np.isin(a_sel[r], taken), 0.0, w)

@@ -95,8 +95,14 @@ class PairwiseModel:
     def start(self, tracks: np.ndarray, x: float, t: np.ndarray, u: np.ndarray) -> None:
         self.x[tracks], self.t[tracks], self.u[tracks] = x, t, u
 
-    def update(self, tracks: np.ndarray, x: float, t: np.ndarray, u: np.ndarray,
-               pos: np.ndarray | None = None) -> None:
+    def update(
+        self,
+        tracks: np.ndarray,
+        x: float,
+        t: np.ndarray,
+        u: np.ndarray,
+        pos: np.ndarray | None = None,
+    ) -> None:
         self.start(tracks, x, t, u)
 
     def _var_u_noise(self, u: np.ndarray) -> np.ndarray:
@@ -106,13 +112,23 @@ class PairwiseModel:
         dx = x - self.x[tracks]
         u = self.u[tracks]
         var_du = 2 * self._var_u_noise(u) + 2 * (self.p.sigma * u * u) ** 2 * (
-            1 - np.exp(-dx / self.p.length))
-        var_t = (2 * max(self.p.stamp_noise, FLOOR_T) ** 2 + dx * dx * var_du
-                 + (self.p.sigma * u * u) ** 2 * dx ** 3 / (6 * self.p.length))
+            1 - np.exp(-dx / self.p.length)
+        )
+        var_t = (
+            2 * max(self.p.stamp_noise, FLOOR_T) ** 2
+            + dx * dx * var_du
+            + (self.p.sigma * u * u) ** 2 * dx**3 / (6 * self.p.length)
+        )
         return self.t[tracks] + dx * u, np.sqrt(self.p.gate * var_t)
 
-    def pair_cost(self, tracks: np.ndarray, x: float, t: np.ndarray, u: np.ndarray,
-                  pos: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def pair_cost(
+        self,
+        tracks: np.ndarray,
+        x: float,
+        t: np.ndarray,
+        u: np.ndarray,
+        pos: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(NLL, squared Mahalanobis distance) of linking each track to each detection."""
         p = self.p
         dx = x - self.x[tracks]
@@ -120,8 +136,11 @@ class PairwiseModel:
         su2 = (p.sigma * u1 * u) ** 2  # sigma_u^2 with m^2 ~ u1 u2
         vn1, vn2 = self._var_u_noise(u1), self._var_u_noise(u)
         e_t = t - self.t[tracks] - dx * (u1 + u) / 2
-        var_t = (2 * max(p.stamp_noise, FLOOR_T) ** 2 + dx * dx * (vn1 + vn2) / 4
-                 + su2 * dx ** 3 / (6 * p.length))
+        var_t = (
+            2 * max(p.stamp_noise, FLOOR_T) ** 2
+            + dx * dx * (vn1 + vn2) / 4
+            + su2 * dx**3 / (6 * p.length)
+        )
         e_u = u - u1
         var_u = vn1 + vn2 + 2 * su2 * (1 - np.exp(-dx / p.length))
         d2 = e_t * e_t / var_t + e_u * e_u / var_u
@@ -159,8 +178,9 @@ class KalmanModel:
         sv = np.maximum(self._par('velocity_noise', tracks), FLOOR_V)
         return st * st + 0 * u, (sv * u * u) ** 2
 
-    def start(self, tracks: np.ndarray, x: float | np.ndarray, t: np.ndarray, u: np.ndarray
-              ) -> None:
+    def start(
+        self, tracks: np.ndarray, x: float | np.ndarray, t: np.ndarray, u: np.ndarray
+    ) -> None:
         rt, ru = self._r(tracks, u)
         sigma, length = self._par('sigma', tracks), self._par('length', tracks)
         # deviation from the cruise speed: zero at the road entry, OU-grown up to x
@@ -175,10 +195,9 @@ class KalmanModel:
         self.cov[tracks] = cov
         self._cache = None
 
-    def predict(self, tracks: np.ndarray, x: float | np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def predict(self, tracks: np.ndarray, x: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c = self._cache
-        if (c is not None and c[0] is tracks and np.isscalar(x) and c[1] == x):
+        if c is not None and c[0] is tracks and np.isscalar(x) and c[1] == x:
             return c[2], c[3]
         d = x - self.x[tracks]
         L = self._par('length', tracks)
@@ -186,15 +205,17 @@ class KalmanModel:
         z = d / L
         small = z < 1e-3
         zs = np.where(small, z, 0.0)
-        i_var = np.where(small, (2 / 3) * zs ** 3 - 0.5 * zs ** 4,
-                         2 * z - 3 + 4 * a - a * a) * L * L  # Var of int of OU / sigma_u^2
+        i_var = (
+            np.where(small, (2 / 3) * zs**3 - 0.5 * zs**4, 2 * z - 3 + 4 * a - a * a) * L * L
+        )  # Var of int of OU / sigma_u^2
         b = L * (1 - a)
         m = self.mean[tracks]
         P = self.cov[tracks]
         su2 = (self._par('sigma', tracks) * m[:, 2] ** 2) ** 2
         f01, f02, f11, f12 = b, d - b, a, 1 - a
-        mean = np.column_stack([m[:, 0] + f01 * m[:, 1] + f02 * m[:, 2],
-                                f11 * m[:, 1] + f12 * m[:, 2], m[:, 2]])
+        mean = np.column_stack(
+            [m[:, 0] + f01 * m[:, 1] + f02 * m[:, 2], f11 * m[:, 1] + f12 * m[:, 2], m[:, 2]]
+        )
         # F P F^T with F = [[1, f01, f02], [0, f11, f12], [0, 0, 1]], done by rows
         r0 = P[:, 0, :] + f01[:, None] * P[:, 1, :] + f02[:, None] * P[:, 2, :]
         r1 = f11[:, None] * P[:, 1, :] + f12[:, None] * P[:, 2, :]
@@ -218,8 +239,9 @@ class KalmanModel:
         rt, _ = self._r(tracks, mean[:, 1])
         return mean[:, 0], np.sqrt(self.p.gate * (cov[:, 0, 0] + rt))
 
-    def innovation(self, tracks: np.ndarray, mean: np.ndarray, cov: np.ndarray, t: np.ndarray,
-                   u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def innovation(
+        self, tracks: np.ndarray, mean: np.ndarray, cov: np.ndarray, t: np.ndarray, u: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(NLL, squared Mahalanobis distance) of measurements given predictions."""
         rt, ru = self._r(tracks, u)
         s00 = cov[:, 0, 0] + rt
@@ -231,8 +253,14 @@ class KalmanModel:
         d2 = (s11 * y0 * y0 - 2 * s01 * y0 * y1 + s00 * y1 * y1) / det
         return 0.5 * (d2 + np.log(det)) + LOG2PI, d2
 
-    def pair_cost(self, tracks: np.ndarray, x: float, t: np.ndarray, u: np.ndarray,
-                  pos: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def pair_cost(
+        self,
+        tracks: np.ndarray,
+        x: float,
+        t: np.ndarray,
+        u: np.ndarray,
+        pos: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Cost of track ``tracks[i]`` for detection i; ``pos`` indexes a cached prediction."""
         if pos is not None and self._cache is not None:
             mean, cov = self._cache[2][pos], self._cache[3][pos]
@@ -240,8 +268,14 @@ class KalmanModel:
             mean, cov = self.predict(tracks, x)
         return self.innovation(tracks, mean, cov, t, u)
 
-    def update(self, tracks: np.ndarray, x: float | np.ndarray, t: np.ndarray, u: np.ndarray,
-               pos: np.ndarray | None = None) -> None:
+    def update(
+        self,
+        tracks: np.ndarray,
+        x: float | np.ndarray,
+        t: np.ndarray,
+        u: np.ndarray,
+        pos: np.ndarray | None = None,
+    ) -> None:
         if pos is not None and self._cache is not None:
             mean, cov = self._cache[2][pos], self._cache[3][pos]
         else:
@@ -258,8 +292,9 @@ class KalmanModel:
         y0 = t - mean[:, 0]
         y1 = u - mean[:, 1]
         self.mean[tracks] = mean + k0 * y0[:, None] + k1 * y1[:, None]
-        self.cov[tracks] = cov - k0[:, :, None] * cov[:, 0, None, :] - (
-            k1[:, :, None] * cov[:, 1, None, :])
+        self.cov[tracks] = (
+            cov - k0[:, :, None] * cov[:, 0, None, :] - (k1[:, :, None] * cov[:, 1, None, :])
+        )
         self.x[tracks] = x
         self._cache = None
 
@@ -267,8 +302,9 @@ class KalmanModel:
 MODELS = {'pairwise': PairwiseModel, 'kalman': KalmanModel}
 
 
-def link(layout: Layout, detections: Detections, params: MotionParams,
-         model: str = 'pairwise') -> np.ndarray:
+def link(
+    layout: Layout, detections: Detections, params: MotionParams, model: str = 'pairwise'
+) -> np.ndarray:
     """Sequential sensor-to-sensor assignment; returns raw track ids (no singleton pruning)."""
     n_s = layout.n_sensors
     per_sensor = by_sensor(detections, n_s)
@@ -289,7 +325,7 @@ def link(layout: Layout, detections: Detections, params: MotionParams,
             if r.size:
                 nll, d2 = m.pair_cost(active[r], x, t[c], u[c], pos=r)
                 skipped = s - 1 - last_sensor[active[r]]
-                w = (nll + skipped * params.miss_cost - params.miss_cost - params.new_cost)
+                w = nll + skipped * params.miss_cost - params.miss_cost - params.new_cost
                 w = np.where(d2 <= params.gate, w, 0.0)
                 mr, mc = match_sparse(r, c, w, active.size, idx.size)
                 if mr.size:
@@ -309,8 +345,9 @@ def link(layout: Layout, detections: Detections, params: MotionParams,
     return labels
 
 
-def _variogram_fit(layout: Layout, d: Detections, labels: np.ndarray, max_pairs: int = 200_000
-                   ) -> tuple[float, float, float] | None:
+def _variogram_fit(
+    layout: Layout, d: Detections, labels: np.ndarray, max_pairs: int = 200_000
+) -> tuple[float, float, float] | None:
     """(nugget sigma_v, sill sigma, range L) of the speed variogram over same-track pairs."""
     keep = labels >= 0
     if keep.sum() < 10:
@@ -343,8 +380,8 @@ def _variogram_fit(layout: Layout, d: Detections, labels: np.ndarray, max_pairs:
     b = np.clip(np.searchsorted(edges, h, side='right') - 1, 0, edges.size - 2)
     cnt = np.bincount(b, minlength=edges.size - 1)
     ok = cnt > 0
-    hb = (np.bincount(b, h, edges.size - 1)[ok] / cnt[ok])
-    gb = (np.bincount(b, g, edges.size - 1)[ok] / cnt[ok])
+    hb = np.bincount(b, h, edges.size - 1)[ok] / cnt[ok]
+    gb = np.bincount(b, g, edges.size - 1)[ok] / cnt[ok]
     wb = np.sqrt(cnt[ok])
     best = None
     for L in np.geomspace(50, 20000, 40):
@@ -356,8 +393,7 @@ def _variogram_fit(layout: Layout, d: Detections, labels: np.ndarray, max_pairs:
     return math.sqrt(nug), math.sqrt(sill), float(L)
 
 
-def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams
-              ) -> MotionParams:
+def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams) -> MotionParams:
     """Estimate the model parameters from the tracks of a first pass (see module doc)."""
     labels = relabel(raw)
     fit = _variogram_fit(layout, d, labels)
@@ -368,15 +404,21 @@ def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams
     keep = labels >= 0
     x = layout.positions[d.sensor_index]
     order = np.lexsort((x, labels))
-    lab, xs, ts, us, ss = (labels[order], x[order], d.stamp[order], 1 / d.velocity[order],
-                           d.sensor_index[order])
+    lab, xs, ts, us, ss = (
+        labels[order],
+        x[order],
+        d.stamp[order],
+        1 / d.velocity[order],
+        d.sensor_index[order],
+    )
     same = (lab[1:] == lab[:-1]) & (lab[1:] >= 0)
     if same.sum() >= 10:
         dx = (xs[1:] - xs[:-1])[same]
         e_t = (ts[1:] - ts[:-1])[same] - dx * (us[1:] + us[:-1])[same] / 2
         u2 = (us[1:] * us[:-1])[same]
-        known = (dx * dx * (p.velocity_noise ** 2) * u2 * u2 / 2
-                 + (p.sigma * u2) ** 2 * dx ** 3 / (6 * p.length))
+        known = dx * dx * (p.velocity_noise**2) * u2 * u2 / 2 + (p.sigma * u2) ** 2 * dx**3 / (
+            6 * p.length
+        )
         r2 = e_t * e_t
         cut = np.quantile(r2, 0.98)
         ok = r2 <= cut
@@ -398,10 +440,17 @@ def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams
     return p
 
 
-def sequence_nll(layout: Layout, d: Detections, seqs: np.ndarray, params: MotionParams,
-                 birth: np.ndarray | None = None, end: np.ndarray | None = None,
-                 rows: dict[str, np.ndarray] | None = None, state: dict | None = None,
-                 finish: bool = True) -> np.ndarray | tuple[np.ndarray, dict]:
+def sequence_nll(
+    layout: Layout,
+    d: Detections,
+    seqs: np.ndarray,
+    params: MotionParams,
+    birth: np.ndarray | None = None,
+    end: np.ndarray | None = None,
+    rows: dict[str, np.ndarray] | None = None,
+    state: dict | None = None,
+    finish: bool = True,
+) -> np.ndarray | tuple[np.ndarray, dict]:
     """Kalman marginal NLL of each detection sequence (rows of ``seqs``, -1 = no detection).
 
     Columns are visited in order; a row's entries must have increasing sensors (gaps allowed).
@@ -458,12 +507,19 @@ def sequence_nll(layout: Layout, d: Detections, seqs: np.ndarray, params: Motion
             m.update(r1, x[nxt], t[nxt], u[nxt], pos=np.arange(r1.size))
         last[live] = s
     if not finish:
-        return out, {'x': m.x, 'mean': m.mean, 'cov': m.cov, 'out': out, 'last': last,
-                     'first_sensor': first_sensor, 'count': count}
+        return out, {
+            'x': m.x,
+            'mean': m.mean,
+            'cov': m.cov,
+            'out': out,
+            'last': last,
+            'first_sensor': first_sensor,
+            'count': count,
+        }
     # a track (two detections or more) that starts late or ends early missed the sensors
     # before / after it; a single detection is a false alarm and pays the new-track cost only
     n_s = layout.n_sensors
-    several = (count >= 2)
+    several = count >= 2
     born = birth & several
     out[born] += np.minimum(first_sensor[born], params.max_skip + 1) * params.miss_cost
     ended = end & several
@@ -475,8 +531,9 @@ def _take_state(state: dict, idx: np.ndarray) -> dict:
     return {k: v[idx] for k, v in state.items()}
 
 
-def _candidates(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _candidates(
+    layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(A, B, s): a detection of track B at sensor s is in the time gate of the pairwise
     prediction from track A's last detection before s."""
     n_s = layout.n_sensors
@@ -517,8 +574,14 @@ MOVES = (0, 1, 2, 3, 5)
 CANDIDATE_GATE = 4 / 6
 
 
-def refine(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams,
-           window: int = 6, rounds: int = 10) -> np.ndarray:
+def refine(
+    layout: Layout,
+    d: Detections,
+    labels: np.ndarray,
+    params: MotionParams,
+    window: int = 6,
+    rounds: int = 10,
+) -> np.ndarray:
     """Local search on track exchanges, scored by Kalman likelihood over several sensors.
 
     A move (A, B, s, k) exchanges between tracks A and B their detections at sensors
@@ -564,22 +627,36 @@ def refine(layout: Layout, d: Detections, labels: np.ndarray, params: MotionPara
         # once, then continue every old and new suffix from the prefix state of its owner
         n_c = ca.size
         birth2 = np.concatenate([a_born, b_born])
-        _, pre = sequence_nll(layout, d, np.concatenate([wa[:, :window], wb[:, :window]]),
-                              params, birth2, finish=False)
+        _, pre = sequence_nll(
+            layout,
+            d,
+            np.concatenate([wa[:, :window], wb[:, :window]]),
+            params,
+            birth2,
+            finish=False,
+        )
         sa, sb = wa[:, window:], wb[:, window:]
         suf, owner, end = [sa, sb], [np.arange(n_c), n_c + np.arange(n_c)], [~a_more, ~b_more]
         for k in MOVES:
             region = (cols[:, window:] >= cs[:, None]) & (
-                (cols[:, window:] < cs[:, None] + k) if k else True)
+                (cols[:, window:] < cs[:, None] + k) if k else True
+            )
             suf += [np.where(region, sb, sa), np.where(region, sa, sb)]
             owner += [np.arange(n_c), n_c + np.arange(n_c)]
             end += [~b_more, ~a_more] if k == 0 else [~a_more, ~b_more]
         owner = np.concatenate(owner)
-        nll = sequence_nll(layout, d, np.concatenate(suf), params, birth2[owner],
-                           np.concatenate(end), state=_take_state(pre, owner)
-                           ).reshape(len(suf), -1)
-        gain = np.stack([nll[2 + 2 * j] + nll[3 + 2 * j] - nll[0] - nll[1]
-                         for j in range(len(MOVES))], axis=1)  # (n_cand, n_moves)
+        nll = sequence_nll(
+            layout,
+            d,
+            np.concatenate(suf),
+            params,
+            birth2[owner],
+            np.concatenate(end),
+            state=_take_state(pre, owner),
+        ).reshape(len(suf), -1)
+        gain = np.stack(
+            [nll[2 + 2 * j] + nll[3 + 2 * j] - nll[0] - nll[1] for j in range(len(MOVES))], axis=1
+        )  # (n_cand, n_moves)
         flat = np.flatnonzero(gain.ravel() < -1e-6)
         if flat.size == 0:
             break
@@ -601,8 +678,13 @@ def refine(layout: Layout, d: Detections, labels: np.ndarray, params: MotionPara
     return cur
 
 
-def track_sequences(d: Detections, labels: np.ndarray, min_len: int = 3,
-                    max_tracks: int | None = None, seed: int = 0) -> np.ndarray:
+def track_sequences(
+    d: Detections,
+    labels: np.ndarray,
+    min_len: int = 3,
+    max_tracks: int | None = None,
+    seed: int = 0,
+) -> np.ndarray:
     """Detections of each track ordered by sensor, as rows of a -1 padded matrix."""
     valid = np.flatnonzero(labels >= 0)
     if valid.size == 0:
@@ -623,8 +705,12 @@ def track_sequences(d: Detections, labels: np.ndarray, min_len: int = 3,
 
 
 _FIT_FIELDS = ('sigma', 'length', 'stamp_noise', 'velocity_noise')
-_FIT_BOUNDS = {'sigma': (0.05, 50.0), 'length': (5.0, 1e5), 'stamp_noise': (FLOOR_T, 5.0),
-               'velocity_noise': (FLOOR_V, 5.0)}
+_FIT_BOUNDS = {
+    'sigma': (0.05, 50.0),
+    'length': (5.0, 1e5),
+    'stamp_noise': (FLOOR_T, 5.0),
+    'velocity_noise': (FLOOR_V, 5.0),
+}
 _FIT_FACTORS = (np.array([0.35, 0.6, 1.0, 1.7, 2.9]), np.array([0.8, 0.9, 1.0, 1.1, 1.25]))
 
 
@@ -641,8 +727,9 @@ def min_length(layout: Layout) -> float:
     return float(max(4 * np.median(np.diff(pos)), 0.4 * (pos[-1] - pos[0]), 5.0))
 
 
-def fit_motion(layout: Layout, d: Detections, labels: np.ndarray, p: MotionParams,
-               max_tracks: int = 120) -> MotionParams:
+def fit_motion(
+    layout: Layout, d: Detections, labels: np.ndarray, p: MotionParams, max_tracks: int = 120
+) -> MotionParams:
     """Maximum-likelihood motion parameters given tracks (coordinate search on log grids).
 
     The Kalman marginal likelihood of the tracks of a first pass is maximised over
@@ -695,8 +782,7 @@ def canonical(detections: Detections) -> np.ndarray:
     return np.lexsort((detections.velocity, detections.stamp, detections.sensor_index))
 
 
-def total_nll(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
-              ) -> float:
+def total_nll(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams) -> float:
     """Negative log-likelihood of a whole labelling under the Kalman model (comparable between
     labellings of the same detections: every detection is in a track or a false alarm)."""
     seqs = track_sequences(d, labels, min_len=1)

@@ -35,21 +35,34 @@ TARGETS, SENSORS = 200, 40
 
 
 def sim_args(episodes: int, seed: int) -> list[str]:
-    return ['--ros-args', '-p', f'episodes:={episodes}', '-p', f'seed:={seed}',
-            '-p', f'n_targets:={TARGETS}', '-p', f'n_sensors:={SENSORS}',
-            '-p', 'real_time_factor:=0.0', '-p', 'wait_for_subscribers:=1']
+    return [
+        '--ros-args',
+        '-p',
+        f'episodes:={episodes}',
+        '-p',
+        f'seed:={seed}',
+        '-p',
+        f'n_targets:={TARGETS}',
+        '-p',
+        f'n_sensors:={SENSORS}',
+        '-p',
+        'real_time_factor:=0.0',
+        '-p',
+        'wait_for_subscribers:=1',
+    ]
 
 
 # --- the bare subscriber (a separate process: --bare) -----------------------------------------
+
 
 def bare_subscriber(expected: int) -> int:
     """Subscribe to every detection topic of the layout; count; print JSON when done."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.node import Node
-    from road_sensor_msgs.msg import Detection, SensorLayout
 
-    from road_sensors import qos
+    from mlkm_ros import qos
+    from road_sensor_msgs.msg import Detection, SensorLayout
 
     class Bare(Node):
         def __init__(self) -> None:
@@ -58,14 +71,18 @@ def bare_subscriber(expected: int) -> int:
             self.first = 0.0
             self.last = 0.0
             self.subs = []
-            self.create_subscription(SensorLayout, qos.LAYOUT_TOPIC, self.on_layout,
-                                     qos.LAYOUT_QOS)
+            self.create_subscription(
+                SensorLayout, qos.LAYOUT_TOPIC, self.on_layout, qos.LAYOUT_QOS
+            )
 
         def on_layout(self, msg: SensorLayout) -> None:
             if not self.subs:
-                self.subs = [self.create_subscription(Detection, qos.detections_topic(n),
-                                                      self.on_detection, qos.DETECTIONS_QOS)
-                             for n in msg.sensor_names]
+                self.subs = [
+                    self.create_subscription(
+                        Detection, qos.detections_topic(n), self.on_detection, qos.DETECTIONS_QOS
+                    )
+                    for n in msg.sensor_names
+                ]
 
         def on_detection(self, msg: Detection) -> None:
             now = time.monotonic()
@@ -92,13 +109,19 @@ def bare_subscriber(expected: int) -> int:
 
 # --- the benchmark ------------------------------------------------------------------------------
 
+
 def _bare_run(domain_id: int, log_dir: Path, episodes: int, seed: int) -> dict:
-    from mlkm_assoc.graph import Graph
+    from mlkm_experiments.launch import Graph
 
     expected = TARGETS * SENSORS * episodes
     with Graph(domain_id, log_dir / 'bare', echo=False) as graph:
-        bare = graph.start_argv('bare_subscriber', sys.executable, str(Path(__file__).resolve()),
-                                '--bare', str(expected))
+        bare = graph.start_argv(
+            'bare_subscriber',
+            sys.executable,
+            str(Path(__file__).resolve()),
+            '--bare',
+            str(expected),
+        )
         sim = graph.start('sensor_sim', 'road_sensors', 'sensor_sim', *sim_args(episodes, seed))
         if bare.wait(180.0) is None:
             raise RuntimeError(f'bare subscriber did not finish; log {bare.log_path}')
@@ -109,19 +132,29 @@ def _bare_run(domain_id: int, log_dir: Path, episodes: int, seed: int) -> dict:
         return json.loads(lines[-1])
 
 
-def _association_run(domain_id: int, log_dir: Path, episodes: int, seed: int,
-                     method: str) -> dict:
-    from mlkm_assoc.graph import Graph, ScoreCollector
-    from road_sensors.conversions import diagnostics_values
+def _association_run(domain_id: int, log_dir: Path, episodes: int, seed: int, method: str) -> dict:
+    from mlkm_experiments.launch import Graph, ScoreCollector
+    from mlkm_ros.conversions import diagnostics_values
 
     collector = ScoreCollector(domain_id, diagnostics=True)
     try:
         with Graph(domain_id, log_dir / 'association', echo=False) as graph:
-            graph.start('association_node', 'mlkm_assoc', 'association_node', '--ros-args',
-                        '-p', f'method:={method}', '-p', 'diagnostics_period:=0.5')
+            graph.start(
+                'association_node',
+                'mlkm_assoc',
+                'association_node',
+                '--ros-args',
+                '-p',
+                f'method:={method}',
+                '-p',
+                'diagnostics_period:=0.5',
+            )
             node = collector.node
-            why = collector.spin_until(lambda: node.count_publishers('/mlkm/tracks') >= 1,
-                                       timeout=30.0, abort=graph.failed)
+            why = collector.spin_until(
+                lambda: node.count_publishers('/mlkm/tracks') >= 1,
+                timeout=30.0,
+                abort=graph.failed,
+            )
             if why:
                 raise RuntimeError(f'association node did not come up: {why}')
             graph.start('sensor_sim', 'road_sensors', 'sensor_sim', *sim_args(episodes, seed))
@@ -129,8 +162,7 @@ def _association_run(domain_id: int, log_dir: Path, episodes: int, seed: int,
 
             def done() -> bool:
                 while collector.diagnostics:
-                    values = diagnostics_values(collector.diagnostics.pop(0),
-                                                '/association_node')
+                    values = diagnostics_values(collector.diagnostics.pop(0), '/association_node')
                     if values is not None:
                         state.clear()
                         state.update(values)
@@ -144,11 +176,16 @@ def _association_run(domain_id: int, log_dir: Path, episodes: int, seed: int,
         collector.close()
 
 
-def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
-        method: str = 'mlkm', seed: int = 0, repeats: int = 5) -> dict:
+def run(
+    out_dir: Path | str = ROOT / 'results' / 'bench',
+    episodes: int = 3,
+    method: str = 'mlkm',
+    seed: int = 0,
+    repeats: int = 5,
+) -> dict:
     """Run both measurements ``repeats`` times, alternating (the machine is shared, so
     medians over interleaved runs); write ``live.json`` and ``live.md`` in ``out_dir``."""
-    from mlkm_assoc.graph import domain
+    from mlkm_experiments.launch import domain
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -157,8 +194,7 @@ def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
     with domain() as domain_id:
         for i in range(repeats):
             bares.append(_bare_run(domain_id, log_dir / str(i), episodes, seed))
-            assocs.append(_association_run(domain_id, log_dir / str(i), episodes, seed,
-                                           method))
+            assocs.append(_association_run(domain_id, log_dir / str(i), episodes, seed, method))
     expected = TARGETS * SENSORS * episodes
     bare_rate = statistics.median(b['ingest_rate'] for b in bares)
 
@@ -167,13 +203,22 @@ def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
 
     assoc_rate = med('ingest_rate')
     result = {
-        'scenario': {'targets': TARGETS, 'sensors': SENSORS, 'episodes': episodes,
-                     'detections': expected, 'real_time_factor': 0.0, 'seed': seed,
-                     'method': method, 'segment_size': int(assocs[0]['segment_size']),
-                     'repeats': repeats},
-        'bare_subscriber': {'received': [b['received'] for b in bares],
-                            'ingest_rate': round(bare_rate, 1),
-                            'ingest_rate_runs': [round(b['ingest_rate'], 1) for b in bares]},
+        'scenario': {
+            'targets': TARGETS,
+            'sensors': SENSORS,
+            'episodes': episodes,
+            'detections': expected,
+            'real_time_factor': 0.0,
+            'seed': seed,
+            'method': method,
+            'segment_size': int(assocs[0]['segment_size']),
+            'repeats': repeats,
+        },
+        'bare_subscriber': {
+            'received': [b['received'] for b in bares],
+            'ingest_rate': round(bare_rate, 1),
+            'ingest_rate_runs': [round(b['ingest_rate'], 1) for b in bares],
+        },
         'association_node': {
             'received': [int(a['received']) for a in assocs],
             'rejected': [int(a['rejected']) for a in assocs],
@@ -191,11 +236,16 @@ def run(out_dir: Path | str = ROOT / 'results' / 'bench', episodes: int = 3,
             'solve_time_max': med('solve_time_max'),
         },
         'ingest_ratio': round(assoc_rate / bare_rate, 3) if bare_rate else 0,
-        'nothing_lost': (all(int(a['received']) == expected for a in assocs)
-                         and all(b['received'] == expected for b in bares)),
+        'nothing_lost': (
+            all(int(a['received']) == expected for a in assocs)
+            and all(b['received'] == expected for b in bares)
+        ),
         'targets': {'ingest_ratio_min': 0.7, 'latency_p95_max': 0.1},
-        'machine': {'python': platform.python_version(), 'cpus': _cpus(),
-                    'load_average_1min': round(os.getloadavg()[0], 2)},
+        'machine': {
+            'python': platform.python_version(),
+            'cpus': _cpus(),
+            'load_average_1min': round(os.getloadavg()[0], 2),
+        },
         'date_utc': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
     }
     (out_dir / 'live.json').write_text(json.dumps(result, indent=2) + '\n')
@@ -245,18 +295,21 @@ about (segments queued) x (solve time per segment); the node's own share is the 
 
 
 def _latency_rows(a: dict) -> str:
-    rows = [('latency', 'latency'),
-            ('of which waiting behind earlier segments', 'queue_wait'),
-            ('of which solving (the core associator)', None),
-            ("of which the node's own work (IPC, message, publish)", 'overhead')]
+    rows = [
+        ('latency', 'latency'),
+        ('of which waiting behind earlier segments', 'queue_wait'),
+        ('of which solving (the core associator)', None),
+        ("of which the node's own work (IPC, message, publish)", 'overhead'),
+    ]
     out = []
     for label, key in rows:
         if key is None:
-            out.append(f'| {label} | mean {a["solve_time_mean"] * 1e3:.1f} | '
-                       f'max {a["solve_time_max"] * 1e3:.1f} |')
+            out.append(
+                f'| {label} | mean {a["solve_time_mean"] * 1e3:.1f} | '
+                f'max {a["solve_time_max"] * 1e3:.1f} |'
+            )
         else:
-            out.append(f'| {label} | {a[key + "_p50"] * 1e3:.1f} | '
-                       f'{a[key + "_p95"] * 1e3:.1f} |')
+            out.append(f'| {label} | {a[key + "_p50"] * 1e3:.1f} | {a[key + "_p95"] * 1e3:.1f} |')
     return '\n'.join(out)
 
 

@@ -10,6 +10,7 @@ and a nonzero exit.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -22,12 +23,17 @@ from rcl_interfaces.msg import (
 )
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 Check = Callable[[Any], str | None]
 
 
 class ParameterError(ValueError):
     """A parameter value was refused; the message says which one and why."""
+
+
+#: The bag tools' name for the same refusal.
+ConfigError = ParameterError
 
 
 @dataclass(frozen=True)
@@ -41,17 +47,22 @@ class ParamSpec:
     check: Check | None = None  # returns a reason when the value is refused
 
     def descriptor(self) -> ParameterDescriptor:
-        desc = ParameterDescriptor(name=self.name, description=self.description,
-                                   read_only=self.read_only)
+        desc = ParameterDescriptor(
+            name=self.name, description=self.description, read_only=self.read_only
+        )
         if self.low is not None and self.high is not None:
             if isinstance(self.default, bool):
                 pass
             elif isinstance(self.default, int):
-                desc.integer_range = [IntegerRange(from_value=int(self.low),
-                                                   to_value=int(self.high), step=0)]
+                desc.integer_range = [
+                    IntegerRange(from_value=int(self.low), to_value=int(self.high), step=0)
+                ]
             elif isinstance(self.default, float):
-                desc.floating_point_range = [FloatingPointRange(
-                    from_value=float(self.low), to_value=float(self.high), step=0.0)]
+                desc.floating_point_range = [
+                    FloatingPointRange(
+                        from_value=float(self.low), to_value=float(self.high), step=0.0
+                    )
+                ]
         return desc
 
     def refuse(self, value: Any) -> str | None:
@@ -68,9 +79,11 @@ def non_negative(value: float) -> str | None:
     return None if value >= 0 else 'must be >= 0'
 
 
-def declare_parameters(node: Node, specs: Sequence[ParamSpec],
-                       on_change: Callable[[dict[str, Any]], None] | None = None
-                       ) -> dict[str, Any]:
+def declare_parameters(
+    node: Node,
+    specs: Sequence[ParamSpec],
+    on_change: Callable[[dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
     """Declare ``specs`` on ``node``; return {name: value} of the startup values.
 
     Registers one on-set callback that refuses a value with its spec's reason. Accepted live
@@ -87,7 +100,8 @@ def declare_parameters(node: Node, specs: Sequence[ParamSpec],
             reason = spec.refuse(p.value)
             if reason:
                 return SetParametersResult(
-                    successful=False, reason=f'{p.name}={p.value!r} refused: {reason}')
+                    successful=False, reason=f'{p.name}={p.value!r} refused: {reason}'
+                )
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(validate)
@@ -99,10 +113,12 @@ def declare_parameters(node: Node, specs: Sequence[ParamSpec],
             raise ParameterError(_explain(spec, exc)) from None
         values[spec.name] = param.value
     if on_change is not None:
+
         def post(params) -> None:
             changed = {p.name: p.value for p in params if p.name in by_name}
             if changed:
                 on_change(changed)
+
         node.add_post_set_parameters_callback(post)
     return values
 
@@ -110,3 +126,71 @@ def declare_parameters(node: Node, specs: Sequence[ParamSpec],
 def _explain(spec: ParamSpec, exc: ParameterException) -> str:
     text = exc.args[0] if exc.args else str(exc)
     return f'{text} (parameter {spec.name}: {spec.description})'
+
+
+# Single declarations, for nodes whose parameters are read once at start-up.
+
+
+def declare_number(
+    node: Node,
+    name: str,
+    default: float,
+    description: str,
+    low: float,
+    high: float,
+    *,
+    integer: bool = False,
+    read_only: bool = True,
+) -> float:
+    """Declare a numeric parameter (int or float accepted on the command line); validate it."""
+    descriptor = ParameterDescriptor(
+        description=description, read_only=read_only, dynamic_typing=True
+    )
+    if integer:
+        descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high))]
+    else:
+        descriptor.floating_point_range = [
+            FloatingPointRange(from_value=float(low), to_value=float(high))
+        ]
+    kind = 'an integer' if integer else 'a number'
+    refusal = f'expected {kind} in [{low:g}, {high:g}] ({description})'
+    try:
+        node.declare_parameter(name, default, descriptor)
+    except ParameterException as exc:
+        raise ConfigError(f'parameter {name} refused: {refusal}; rclpy: {exc}') from None
+    value = node.get_parameter(name).value
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if ok and integer and isinstance(value, float):
+        ok = value.is_integer()
+    if not ok or not math.isfinite(value) or not low <= value <= high:
+        raise ConfigError(f'parameter {name}={value!r} refused: {refusal}')
+    return int(value) if integer else float(value)
+
+
+def declare_bool(node: Node, name: str, default: bool, description: str) -> bool:
+    node.declare_parameter(
+        name, default, ParameterDescriptor(description=description, read_only=True)
+    )
+    return bool(node.get_parameter(name).value)
+
+
+def declare_string(node: Node, name: str, default: str, description: str) -> str:
+    node.declare_parameter(
+        name, default, ParameterDescriptor(description=description, read_only=True)
+    )
+    return str(node.get_parameter(name).value)
+
+
+def declare_strings(node: Node, name: str, description: str) -> tuple[str, ...]:
+    """A read-only string-array parameter, empty unless set (``-p name:='[a, b]'``)."""
+    node.declare_parameter(
+        name,
+        Parameter.Type.STRING_ARRAY,
+        ParameterDescriptor(description=description, read_only=True),
+    )
+    value = node.get_parameter_or(name, None)
+    if value is None or value.type_ == Parameter.Type.NOT_SET:
+        return ()
+    if value.type_ != Parameter.Type.STRING_ARRAY:
+        raise ConfigError(f'parameter {name} must be a list of strings, got {value.value!r}')
+    return tuple(v for v in value.value if v)

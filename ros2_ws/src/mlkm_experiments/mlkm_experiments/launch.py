@@ -28,8 +28,9 @@ def executable(package: str, name: str) -> Path:
     try:
         prefix = Path(get_package_prefix(package))
     except PackageNotFoundError:
-        raise RuntimeError(f'package {package!r} not found; run `make setup` and '
-                           '`source env.sh`') from None
+        raise RuntimeError(
+            f'package {package!r} not found; run `make setup` and `source env.sh`'
+        ) from None
     path = prefix / 'lib' / package / name
     if not os.access(path, os.X_OK):
         raise RuntimeError(f'no executable {name!r} in package {package!r} ({path})')
@@ -80,15 +81,22 @@ def graph_env(domain_id: int) -> dict[str, str]:
 class Proc:
     """One started executable, in its own process group, output to a log file."""
 
-    def __init__(self, name: str, argv: list[str], env: dict[str, str], log_path: Path,
-                 echo: bool = False) -> None:
+    def __init__(
+        self, name: str, argv: list[str], env: dict[str, str], log_path: Path, echo: bool = False
+    ) -> None:
         self.name = name
         self.argv = argv
         self.log_path = log_path
         log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(log_path, 'wb') as log:
-            self.proc = subprocess.Popen(argv, env=env, stdin=subprocess.DEVNULL, stdout=log,
-                                         stderr=subprocess.STDOUT, start_new_session=True)
+            self.proc = subprocess.Popen(
+                argv,
+                env=env,
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
         if echo:
             print(f'started {name} (pid {self.proc.pid}): {" ".join(argv)}', flush=True)
 
@@ -142,8 +150,13 @@ def cpu_seconds(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def wait_idle(pid: int, timeout: float = 60.0, period: float = 0.25, quiet: int = 4,
-              busy_fraction: float = 0.1) -> bool:
+def wait_idle(
+    pid: int,
+    timeout: float = 60.0,
+    period: float = 0.25,
+    quiet: int = 4,
+    busy_fraction: float = 0.1,
+) -> bool:
     """Wait until process ``pid`` is idle (CPU below ``busy_fraction`` for ``quiet``
     periods in a row), e.g. a recorder that has worked off the messages DDS already
     delivered to it. False on timeout or when the process is gone."""
@@ -209,21 +222,32 @@ class Graph:
         self.stop_all()
 
 
-def start_association(graph: Graph, collector: ScoreCollector, method: str,
-                      *also: tuple[str, ...]) -> None:
+def start_association(
+    graph: Graph, collector: ScoreCollector, method: str, *also: tuple[str, ...]
+) -> None:
     """Start association_node and scorer_node, then ``also`` (each ``(name, package, exe,
     *args)``), and wait until /mlkm/tracks is matched by the scorer and each of ``also``, so
     that no track update is published before its subscribers are there."""
-    graph.start('association_node', 'mlkm_assoc', 'association_node',
-                '--ros-args', '-p', f'method:={method}')
+    graph.start(
+        'association_node',
+        'mlkm_assoc',
+        'association_node',
+        '--ros-args',
+        '-p',
+        f'method:={method}',
+    )
     graph.start('scorer_node', 'mlkm_assoc', 'scorer_node')
     for spec in also:
         graph.start(*spec)
     node = collector.node
     why = collector.spin_until(
-        lambda: (node.count_publishers('/mlkm/tracks') >= 1
-                 and node.count_subscribers('/mlkm/tracks') >= 1 + len(also)),
-        timeout=30.0, abort=graph.failed)
+        lambda: (
+            node.count_publishers('/mlkm/tracks') >= 1
+            and node.count_subscribers('/mlkm/tracks') >= 1 + len(also)
+        ),
+        timeout=30.0,
+        abort=graph.failed,
+    )
     if why:
         raise RuntimeError(f'graph did not come up: {why}')
 
@@ -239,31 +263,43 @@ class ScoreCollector:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from rclpy.signals import SignalHandlerOptions
-        from road_sensor_msgs.msg import AssociationScore
 
-        from road_sensors import qos
+        from mlkm_ros import qos
+        from road_sensor_msgs.msg import AssociationScore
 
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         self._rclpy = rclpy
         self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id,
-                   signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(
+            context=self.context,
+            domain_id=domain_id,
+            signal_handler_options=SignalHandlerOptions.NO,
+        )
         self.node = Node('score_collector', context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.scores: dict[int, AssociationScore] = {}
         self.diagnostics: list[DiagnosticArray] = []
-        self.node.create_subscription(AssociationScore, qos.SCORE_TOPIC, self._on_score,
-                                      qos.SCORE_QOS)
+        self.node.create_subscription(
+            AssociationScore, qos.SCORE_TOPIC, self._on_score, qos.SCORE_QOS
+        )
         if diagnostics:
-            self.node.create_subscription(DiagnosticArray, qos.DIAGNOSTICS_TOPIC,
-                                          self.diagnostics.append, qos.DIAGNOSTICS_QOS)
+            self.node.create_subscription(
+                DiagnosticArray,
+                qos.DIAGNOSTICS_TOPIC,
+                self.diagnostics.append,
+                qos.DIAGNOSTICS_QOS,
+            )
 
     def _on_score(self, msg) -> None:
         self.scores[msg.episode_id] = msg
 
-    def spin_until(self, predicate: Callable[[], bool], timeout: float,
-                   abort: Callable[[], str | None] = lambda: None) -> str | None:
+    def spin_until(
+        self,
+        predicate: Callable[[], bool],
+        timeout: float,
+        abort: Callable[[], str | None] = lambda: None,
+    ) -> str | None:
         """Spin until ``predicate()``; returns None, or why it stopped early."""
         deadline = time.monotonic() + timeout
         while not predicate():
@@ -286,9 +322,11 @@ def format_scores(scores: dict, title: str) -> str:
     lines = [title, 'episode  method      accuracy  correct/total  link P / R        ARI']
     for e in sorted(scores):
         s = scores[e]
-        lines.append(f'{e:7d}  {s.method:10s}  {s.accuracy:8.4f}  {s.correct:6d}/{s.total:<6d}'
-                     f'  {s.link_precision:.4f}/{s.link_recall:.4f}  '
-                     f'{s.adjusted_rand_index:.4f}')
+        lines.append(
+            f'{e:7d}  {s.method:10s}  {s.accuracy:8.4f}  {s.correct:6d}/{s.total:<6d}'
+            f'  {s.link_precision:.4f}/{s.link_recall:.4f}  '
+            f'{s.adjusted_rand_index:.4f}'
+        )
     if scores:
         mean = sum(s.accuracy for s in scores.values()) / len(scores)
         lines.append(f'mean accuracy over {len(scores)} episode(s): {mean:.4f}')

@@ -13,6 +13,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from std_msgs.msg import Header
+
+from mlkm_core.types import Layout
 from road_sensor_msgs.msg import (
     AssociationScore,
     Detection,
@@ -22,9 +25,6 @@ from road_sensor_msgs.msg import (
     Track,
     TrackArray,
 )
-from std_msgs.msg import Header
-
-from mlkm_core.types import Layout
 
 NS_PER_S = 1_000_000_000
 FRAME_ID = 'road'
@@ -33,6 +33,7 @@ FALSE_ALARM_ID = GroundTruth.FALSE_ALARM
 
 
 # --- time ---------------------------------------------------------------------------------
+
 
 def seconds_to_ns(seconds: float) -> int:
     """A time in seconds (float) -> integer nanoseconds, rounded to the nearest ns."""
@@ -63,6 +64,7 @@ def header(stamp_ns: int) -> Header:
 
 # --- layout -------------------------------------------------------------------------------
 
+
 def layout_to_msg(layout: Layout, stamp_ns: int) -> SensorLayout:
     msg = SensorLayout(header=header(stamp_ns), road_length=float(layout.road_length))
     msg.sensor_ids = [int(s) for s in layout.sensor_ids]
@@ -76,27 +78,38 @@ def layout_from_msg(msg: SensorLayout) -> Layout:
     n = len(msg.positions)
     if len(msg.sensor_ids) != n or len(msg.sensor_names) != n:
         raise ValueError('sensor_ids, sensor_names and positions differ in length')
-    return Layout(road_length=float(msg.road_length),
-                  positions=np.asarray(msg.positions, dtype=float),
-                  sensor_ids=np.asarray(msg.sensor_ids, dtype=np.int64),
-                  names=tuple(msg.sensor_names))
+    return Layout(
+        road_length=float(msg.road_length),
+        positions=np.asarray(msg.positions, dtype=float),
+        sensor_ids=np.asarray(msg.sensor_ids, dtype=np.int64),
+        names=tuple(msg.sensor_names),
+    )
 
 
 # --- detections, ground truth, episodes ---------------------------------------------------
 
-def detection_to_msg(sensor_id: int, stamp_ns: int, position: float,
-                     velocity: float) -> Detection:
-    return Detection(header=header(stamp_ns), sensor_id=int(sensor_id),
-                     position=float(position), velocity=float(velocity))
+
+def detection_to_msg(sensor_id: int, stamp_ns: int, position: float, velocity: float) -> Detection:
+    return Detection(
+        header=header(stamp_ns),
+        sensor_id=int(sensor_id),
+        position=float(position),
+        velocity=float(velocity),
+    )
 
 
-def ground_truth_to_msg(episode_id: int, sensor_id: int, stamp_ns: int, target: int,
-                        true_velocity: float) -> GroundTruth:
+def ground_truth_to_msg(
+    episode_id: int, sensor_id: int, stamp_ns: int, target: int, true_velocity: float
+) -> GroundTruth:
     false_alarm = target < 0
-    return GroundTruth(header=header(stamp_ns), episode_id=int(episode_id),
-                       sensor_id=int(sensor_id),
-                       target_id=FALSE_ALARM_ID if false_alarm else int(target),
-                       false_alarm=bool(false_alarm), true_velocity=float(true_velocity))
+    return GroundTruth(
+        header=header(stamp_ns),
+        episode_id=int(episode_id),
+        sensor_id=int(sensor_id),
+        target_id=FALSE_ALARM_ID if false_alarm else int(target),
+        false_alarm=bool(false_alarm),
+        true_velocity=float(true_velocity),
+    )
 
 
 def ground_truth_target(msg: GroundTruth) -> int:
@@ -104,15 +117,27 @@ def ground_truth_target(msg: GroundTruth) -> int:
     return -1 if (msg.false_alarm or msg.target_id == FALSE_ALARM_ID) else int(msg.target_id)
 
 
-def episode_started_msg(episode_id: int, num_targets: int, start_ns: int, end_ns: int,
-                        stamp_ns: int) -> EpisodeInfo:
-    return EpisodeInfo(header=header(stamp_ns), episode_id=int(episode_id),
-                       status=EpisodeInfo.STATUS_STARTED, num_targets=int(num_targets),
-                       start=ns_to_time(start_ns), end=ns_to_time(end_ns))
+def episode_started_msg(
+    episode_id: int, num_targets: int, start_ns: int, end_ns: int, stamp_ns: int
+) -> EpisodeInfo:
+    return EpisodeInfo(
+        header=header(stamp_ns),
+        episode_id=int(episode_id),
+        status=EpisodeInfo.STATUS_STARTED,
+        num_targets=int(num_targets),
+        start=ns_to_time(start_ns),
+        end=ns_to_time(end_ns),
+    )
 
 
-def episode_ended_msg(episode_id: int, num_targets: int, start_ns: int, end_ns: int,
-                      stamp_ns: int, counts: Mapping[int, int]) -> EpisodeInfo:
+def episode_ended_msg(
+    episode_id: int,
+    num_targets: int,
+    start_ns: int,
+    end_ns: int,
+    stamp_ns: int,
+    counts: Mapping[int, int],
+) -> EpisodeInfo:
     msg = episode_started_msg(episode_id, num_targets, start_ns, end_ns, stamp_ns)
     msg.status = EpisodeInfo.STATUS_ENDED
     msg.sensor_ids = [int(s) for s in counts]
@@ -129,10 +154,22 @@ def episode_counts(msg: EpisodeInfo) -> dict[int, int]:
 
 # --- tracks -------------------------------------------------------------------------------
 
-def tracks_to_msg(*, episode_id: int, method: str, final: bool, segments_done: int,
-                  segments_total: int, sensor_ids: np.ndarray, stamps_ns: np.ndarray,
-                  velocities: np.ndarray, positions: np.ndarray, labels: np.ndarray,
-                  solve_time: float, stamp_ns: int) -> TrackArray:
+
+def tracks_to_msg(
+    *,
+    episode_id: int,
+    method: str,
+    final: bool,
+    segments_done: int,
+    segments_total: int,
+    sensor_ids: np.ndarray,
+    stamps_ns: np.ndarray,
+    velocities: np.ndarray,
+    positions: np.ndarray,
+    labels: np.ndarray,
+    solve_time: float,
+    stamp_ns: int,
+) -> TrackArray:
     """Group detections by label into Tracks (each ordered by position, then stamp).
 
     ``labels[i]`` is the track id of detection i, or -1 (unassigned).
@@ -145,9 +182,15 @@ def tracks_to_msg(*, episode_id: int, method: str, final: bool, segments_done: i
     order = np.lexsort((stamps_ns, positions, labels))
     sorted_labels = labels[order]
     cuts = np.flatnonzero(np.diff(sorted_labels)) + 1
-    msg = TrackArray(header=header(stamp_ns), episode_id=int(episode_id), method=method,
-                     final=bool(final), segments_done=int(segments_done),
-                     segments_total=int(segments_total), solve_time=float(solve_time))
+    msg = TrackArray(
+        header=header(stamp_ns),
+        episode_id=int(episode_id),
+        method=method,
+        final=bool(final),
+        segments_done=int(segments_done),
+        segments_total=int(segments_total),
+        solve_time=float(solve_time),
+    )
     tracks = []
     for group in np.split(order, cuts):
         if group.size == 0:
@@ -160,9 +203,15 @@ def tracks_to_msg(*, episode_id: int, method: str, final: bool, segments_done: i
             msg.unassigned_stamps = times
             msg.unassigned_velocities = velocities[group].tolist()
             continue
-        tracks.append(Track(track_id=label, sensor_ids=ids, stamps=times,
-                            velocities=velocities[group].tolist(),
-                            positions=positions[group].tolist()))
+        tracks.append(
+            Track(
+                track_id=label,
+                sensor_ids=ids,
+                stamps=times,
+                velocities=velocities[group].tolist(),
+                positions=positions[group].tolist(),
+            )
+        )
     msg.tracks = tracks
     return msg
 
@@ -183,29 +232,59 @@ def tracks_from_msg(msg: TrackArray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     stamps.extend(time_to_ns(t) for t in msg.unassigned_stamps)
     vels.extend(msg.unassigned_velocities)
     labels.extend([-1] * len(msg.unassigned_sensor_ids))
-    return (np.asarray(ids, dtype=np.int64), np.asarray(stamps, dtype=np.int64),
-            np.asarray(vels, dtype=float), np.asarray(labels, dtype=np.int64))
+    return (
+        np.asarray(ids, dtype=np.int64),
+        np.asarray(stamps, dtype=np.int64),
+        np.asarray(vels, dtype=float),
+        np.asarray(labels, dtype=np.int64),
+    )
 
 
 # --- score, diagnostics -------------------------------------------------------------------
 
-def score_to_msg(*, episode_id: int, method: str, score, mean_accuracy: float,
-                 episodes_scored: int, stamp_ns: int) -> AssociationScore:
+
+def score_to_msg(
+    *,
+    episode_id: int,
+    method: str,
+    score,
+    mean_accuracy: float,
+    episodes_scored: int,
+    stamp_ns: int,
+) -> AssociationScore:
     """``score`` is a ``mlkm_core.metrics.Score``."""
     return AssociationScore(
-        header=header(stamp_ns), episode_id=int(episode_id), method=method,
-        accuracy=float(score.accuracy), correct=int(score.correct), total=int(score.total),
-        link_recall=float(score.link_recall), link_precision=float(score.link_precision),
+        header=header(stamp_ns),
+        episode_id=int(episode_id),
+        method=method,
+        accuracy=float(score.accuracy),
+        correct=int(score.correct),
+        total=int(score.total),
+        link_recall=float(score.link_recall),
+        link_precision=float(score.link_precision),
         identity_switches=int(score.identity_switches),
         adjusted_rand_index=float(score.adjusted_rand_index),
-        mean_accuracy=float(mean_accuracy), episodes_scored=int(episodes_scored))
+        mean_accuracy=float(mean_accuracy),
+        episodes_scored=int(episodes_scored),
+    )
 
 
-def diagnostics_to_msg(*, name: str, hardware_id: str, level: int, message: str,
-                       values: Mapping[str, object], stamp_ns: int) -> DiagnosticArray:
-    status = DiagnosticStatus(level=bytes([level]), name=name, message=message,
-                              hardware_id=hardware_id,
-                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+def diagnostics_to_msg(
+    *,
+    name: str,
+    hardware_id: str,
+    level: int,
+    message: str,
+    values: Mapping[str, object],
+    stamp_ns: int,
+) -> DiagnosticArray:
+    status = DiagnosticStatus(
+        level=bytes([level]),
+        name=name,
+        message=message,
+        hardware_id=hardware_id,
+        values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
+    )
     return DiagnosticArray(header=header(stamp_ns), status=[status])
 
 

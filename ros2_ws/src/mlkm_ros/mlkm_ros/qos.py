@@ -36,33 +36,50 @@ def detections_topic(sensor_name: str) -> str:
 
 #: /road/sensor_layout: reliable, transient_local, depth 1.
 LAYOUT_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=1,
-    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 #: /road/episode: reliable, transient_local (the last LATCHED_HISTORY_DEPTH messages).
 EPISODE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=LATCHED_HISTORY_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    history=HistoryPolicy.KEEP_LAST,
+    depth=LATCHED_HISTORY_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 #: Detections, ground truth and tracks: reliable, volatile, KEEP_ALL (nothing lost).
 STREAM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_ALL,
-    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
 DETECTIONS_QOS = STREAM_QOS
 GROUND_TRUTH_QOS = STREAM_QOS
 TRACKS_QOS = STREAM_QOS
 
 #: /mlkm/score: reliable, transient_local (the last LATCHED_HISTORY_DEPTH episodes).
 SCORE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=LATCHED_HISTORY_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    history=HistoryPolicy.KEEP_LAST,
+    depth=LATCHED_HISTORY_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 #: /diagnostics: reliable, volatile; periodic status, so a bounded history is enough.
 DIAGNOSTICS_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=100,
-    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
 
 #: /clock: reliable writer, depth 1 (matches the usual best-effort clock readers too).
 CLOCK_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=1,
-    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)

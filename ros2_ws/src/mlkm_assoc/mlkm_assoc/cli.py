@@ -7,8 +7,8 @@
 (-1 = unassigned). With ground truth it prints the accuracy and the other metrics. A malformed
 file is rejected with a message naming the line, exit code 2, and nothing is written.
 
-``mlkm paper`` reproduces the paper's experiments (see ``mlkm_core.paper``);
-``mlkm bench ...`` hands its arguments to ``mlkm_core.bench.main``.
+``mlkm paper`` reproduces the paper's experiments (see ``mlkm_experiments.paper``);
+``mlkm bench ...`` hands its arguments to ``mlkm_experiments.bench.main``.
 """
 
 from __future__ import annotations
@@ -45,14 +45,17 @@ def read_detections(path: str | Path) -> tuple[Layout, Detections, list[dict], l
         try:
             header = [h.strip() for h in next(reader)]
         except StopIteration:
-            raise InputError(f'{path}: line 1: empty file, expected a header '
-                             f'{",".join(REQUIRED)}[,{TRUTH}]') from None
+            raise InputError(
+                f'{path}: line 1: empty file, expected a header {",".join(REQUIRED)}[,{TRUTH}]'
+            ) from None
         except (csv.Error, UnicodeDecodeError) as exc:
             raise InputError(f'{path}: line 1: {exc}') from None
         missing = [c for c in REQUIRED if c not in header]
         if missing:
-            raise InputError(f'{path}: line 1: missing column(s) {", ".join(missing)} '
-                             f'(header must contain {",".join(REQUIRED)}[,{TRUTH}])')
+            raise InputError(
+                f'{path}: line 1: missing column(s) {", ".join(missing)} '
+                f'(header must contain {",".join(REQUIRED)}[,{TRUTH}])'
+            )
         if len(set(header)) != len(header):
             raise InputError(f'{path}: line 1: duplicate column names')
         col = {name: header.index(name) for name in header}
@@ -66,8 +69,9 @@ def read_detections(path: str | Path) -> tuple[Layout, Detections, list[dict], l
                 if not row or all(not c.strip() for c in row):
                     continue
                 if len(row) != len(header):
-                    raise InputError(f'{path}: line {line}: expected {len(header)} fields, '
-                                     f'got {len(row)}')
+                    raise InputError(
+                        f'{path}: line {line}: expected {len(header)} fields, got {len(row)}'
+                    )
                 sid = _integer(row[col['sensor_id']], 'sensor_id', path, line, minimum=0)
                 pos = _number(row[col['position_m']], 'position_m', path, line)
                 t = _number(row[col['stamp_s']], 'stamp_s', path, line)
@@ -80,7 +84,8 @@ def read_detections(path: str | Path) -> tuple[Layout, Detections, list[dict], l
                     first_pos, first_line = position_of[sid]
                     raise InputError(
                         f'{path}: line {line}: sensor {sid} at position_m {pos}, but at '
-                        f'{first_pos} on line {first_line}')
+                        f'{first_pos} on line {first_line}'
+                    )
                 position_of.setdefault(sid, (pos, line))
                 if has_truth:
                     target.append(_integer(row[col[TRUTH]], TRUTH, path, line, minimum=-1))
@@ -97,11 +102,16 @@ def read_detections(path: str | Path) -> tuple[Layout, Detections, list[dict], l
     dup = np.flatnonzero(np.diff(pos) == 0)
     if dup.size:
         a, b = int(ids[dup[0]]), int(ids[dup[0] + 1])
-        raise InputError(f'{path}: line {position_of[b][1]}: sensors {a} and {b} share '
-                         f'position_m {pos[dup[0]]}')
+        raise InputError(
+            f'{path}: line {position_of[b][1]}: sensors {a} and {b} share position_m {pos[dup[0]]}'
+        )
     layout = Layout(float(pos[-1]) + 1.0, pos, ids)
-    dets = Detections(layout.index_of(np.array(sensor)), np.array(stamp), np.array(velocity),
-                      np.array(target, np.int64) if has_truth else None)
+    dets = Detections(
+        layout.index_of(np.array(sensor)),
+        np.array(stamp),
+        np.array(velocity),
+        np.array(target, np.int64) if has_truth else None,
+    )
     return layout, dets, rows, header
 
 
@@ -150,36 +160,44 @@ def cmd_associate(args: argparse.Namespace) -> int:
         print(f'mlkm associate: error: {exc}', file=sys.stderr)
         return 2
     if 'track_id' in header:
-        print(f'mlkm associate: error: {args.input}: line 1: input already has a track_id '
-              'column', file=sys.stderr)
+        print(
+            f'mlkm associate: error: {args.input}: line 1: input already has a track_id column',
+            file=sys.stderr,
+        )
         return 2
     n_targets = args.targets or int(np.bincount(dets.sensor_index).max())
     try:
-        associator = make_associator(args.method, AssociatorConfig(
-            segment_size=args.segment_size, seed=args.seed))
+        associator = make_associator(
+            args.method, AssociatorConfig(segment_size=args.segment_size, seed=args.seed)
+        )
     except ValueError as exc:
         print(f'mlkm associate: error: {exc}', file=sys.stderr)
         return 2
     labels = associator.associate(layout, dets, n_targets)
     _write_atomic(Path(args.output), header, rows, labels)
     n_tracks = np.unique(labels[labels >= 0]).size
-    print(f'{len(dets)} detections from {layout.n_sensors} sensors -> {n_tracks} tracks '
-          f'({args.method}, {n_targets} targets) written to {args.output}')
+    print(
+        f'{len(dets)} detections from {layout.n_sensors} sensors -> {n_tracks} tracks '
+        f'({args.method}, {n_targets} targets) written to {args.output}'
+    )
     if dets.target is not None:
         s = score(dets, labels)
         print(f'accuracy: {100 * s.accuracy:.2f} % ({s.correct}/{s.total})')
-        print(f'link precision: {100 * s.link_precision:.2f} %  '
-              f'link recall: {100 * s.link_recall:.2f} %  '
-              f'identity switches: {s.identity_switches}  '
-              f'adjusted Rand index: {s.adjusted_rand_index:.4f}')
+        print(
+            f'link precision: {100 * s.link_precision:.2f} %  '
+            f'link recall: {100 * s.link_recall:.2f} %  '
+            f'identity switches: {s.identity_switches}  '
+            f'adjusted Rand index: {s.adjusted_rand_index:.4f}'
+        )
     return 0
 
 
 def cmd_paper(args: argparse.Namespace) -> int:
-    from mlkm_core import paper
+    from mlkm_experiments import paper
 
-    return paper.main_args(args.datasets, args.out, args.jobs, args.dnn_datasets,
-                           args.segment_size)
+    return paper.main_args(
+        args.datasets, args.out, args.jobs, args.dnn_datasets, args.segment_size
+    )
 
 
 def _positive(text: str) -> int:
@@ -196,36 +214,59 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='mlkm', description=__doc__.split('\n\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
     a = sub.add_parser('associate', help='associate detections from a CSV file')
-    a.add_argument('--input', required=True, help='detections CSV: ' + ','.join(REQUIRED)
-                   + f'[,{TRUTH}]')
+    a.add_argument(
+        '--input', required=True, help='detections CSV: ' + ','.join(REQUIRED) + f'[,{TRUTH}]'
+    )
     a.add_argument('--output', required=True, help='output CSV: the input plus track_id')
-    a.add_argument('--method', default='mlkm', choices=available_methods(),
-                   help='associator (default: mlkm)')
-    a.add_argument('--segment-size', type=_positive, default=default_k,
-                   help=f'sensors per segment K (default: {default_k})')
-    a.add_argument('--targets', type=_positive, default=None,
-                   help='number of targets (default: the largest per-sensor count)')
+    a.add_argument(
+        '--method', default='mlkm', choices=available_methods(), help='associator (default: mlkm)'
+    )
+    a.add_argument(
+        '--segment-size',
+        type=_positive,
+        default=default_k,
+        help=f'sensors per segment K (default: {default_k})',
+    )
+    a.add_argument(
+        '--targets',
+        type=_positive,
+        default=None,
+        help='number of targets (default: the largest per-sensor count)',
+    )
     a.add_argument('--seed', type=int, default=0, help='random seed of the method')
     a.set_defaults(func=cmd_associate)
     p = sub.add_parser('paper', help="reproduce the paper's experiments")
-    p.add_argument('--datasets', type=_positive, default=100,
-                   help='seeded datasets per configuration (default: 100)')
-    p.add_argument('--dnn-datasets', type=_positive, default=None,
-                   help='datasets per DNN split (default: min(datasets, 10))')
+    p.add_argument(
+        '--datasets',
+        type=_positive,
+        default=100,
+        help='seeded datasets per configuration (default: 100)',
+    )
+    p.add_argument(
+        '--dnn-datasets',
+        type=_positive,
+        default=None,
+        help='datasets per DNN split (default: min(datasets, 10))',
+    )
     p.add_argument('--out', default='results/paper', help='output directory')
     p.add_argument('--jobs', type=_positive, default=2, help='worker processes (default: 2)')
-    p.add_argument('--segment-size', type=_positive, default=default_k,
-                   help=f'MLKM segment size K (default: {default_k})')
+    p.add_argument(
+        '--segment-size',
+        type=_positive,
+        default=default_k,
+        help=f'MLKM segment size K (default: {default_k})',
+    )
     p.set_defaults(func=cmd_paper)
-    sub.add_parser('bench', help='benchmarks (arguments go to mlkm_core.bench)',
-                   add_help=False)
+    sub.add_parser(
+        'bench', help='benchmarks (arguments go to mlkm_experiments.bench)', add_help=False
+    )
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == 'bench':
-        from mlkm_core import bench
+        from mlkm_experiments import bench
 
         return int(bench.main(argv[1:]) or 0)
     args = build_parser().parse_args(argv)

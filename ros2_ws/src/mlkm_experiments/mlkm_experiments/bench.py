@@ -40,8 +40,7 @@ from mlkm_core.metrics import score
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Dataset, Detections, Layout
 
-CLUTTER = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2,
-               velocity_noise=0.5)
+CLUTTER = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2, velocity_noise=0.5)
 MODES = ('paper', 'clutter')
 CELLS = ((10, 10), (50, 20), (200, 50), (1000, 100))
 SEEDS_FULL = {(10, 10): 40, (50, 20): 30, (200, 50): 8, (1000, 100): 2}
@@ -53,8 +52,13 @@ COST_LIMIT = 45.0  # [s] per point
 PEER_SEEDS = {(10, 10): 10, (50, 20): 5}
 BEST = 'multiframe'
 BASELINE = 'assignment'
-ONE_THREAD = {'OMP_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1',
-              'NUMEXPR_NUM_THREADS': '1', 'VECLIB_MAXIMUM_THREADS': '1'}
+ONE_THREAD = {
+    'OMP_NUM_THREADS': '1',
+    'OPENBLAS_NUM_THREADS': '1',
+    'MKL_NUM_THREADS': '1',
+    'NUMEXPR_NUM_THREADS': '1',
+    'VECLIB_MAXIMUM_THREADS': '1',
+}
 
 
 def sim_config(mode: str, n_targets: int, n_sensors: int) -> SimConfig:
@@ -90,8 +94,9 @@ def _grid_child(method: str, mode: str, cell: tuple[int, int], seeds: list[int],
     conn.close()
 
 
-def run_budgeted(method: str, mode: str, cell: tuple[int, int], seeds: list[int],
-                 budget: float) -> tuple[list[dict], str]:
+def run_budgeted(
+    method: str, mode: str, cell: tuple[int, int], seeds: list[int], budget: float
+) -> tuple[list[dict], str]:
     """Run ``method`` on the datasets in a child process; stop it when the budget is spent."""
     ctx = mp.get_context('fork')
     parent, child = ctx.Pipe(duplex=False)
@@ -105,8 +110,10 @@ def run_budgeted(method: str, mode: str, cell: tuple[int, int], seeds: list[int]
         while True:
             left = deadline - time.monotonic()
             if left <= 0 or not parent.poll(left):
-                status = (f'stopped at the {budget:.0f} s time limit after {len(rows)} of '
-                          f'{len(seeds)} datasets')
+                status = (
+                    f'stopped at the {budget:.0f} s time limit after {len(rows)} of '
+                    f'{len(seeds)} datasets'
+                )
                 break
             try:
                 msg = parent.recv()
@@ -129,7 +136,8 @@ def summarise(rows: list[dict]) -> dict:
     acc = np.array([r['accuracy'] for r in rows])
     return {
         'n': len(rows),
-        'accuracy_mean': float(acc.mean()), 'accuracy_min': float(acc.min()),
+        'accuracy_mean': float(acc.mean()),
+        'accuracy_min': float(acc.min()),
         'accuracy_max': float(acc.max()),
         'link_precision': float(np.mean([r['link_precision'] for r in rows])),
         'link_recall': float(np.mean([r['link_recall'] for r in rows])),
@@ -141,23 +149,32 @@ def summarise(rows: list[dict]) -> dict:
 
 
 def run_grid(methods: list[str], seeds_per_cell: dict, log) -> dict:
-    out: dict = {'cells': [], 'clutter': CLUTTER, 'budget_s': {f'{a}x{b}': v
-                                                               for (a, b), v in BUDGET.items()}}
+    out: dict = {
+        'cells': [],
+        'clutter': CLUTTER,
+        'budget_s': {f'{a}x{b}': v for (a, b), v in BUDGET.items()},
+    }
     for cell in CELLS:
         n = seeds_per_cell[cell]
         seeds = [dataset_seed(*cell, k) for k in range(n)]
         for mode in MODES:
-            entry = {'targets': cell[0], 'sensors': cell[1], 'mode': mode, 'seeds': seeds,
-                     'methods': {}}
+            entry = {
+                'targets': cell[0],
+                'sensors': cell[1],
+                'mode': mode,
+                'seeds': seeds,
+                'methods': {},
+            }
             for m in methods:
                 t0 = time.monotonic()
                 rows, status = run_budgeted(m, mode, cell, seeds, BUDGET[cell])
-                entry['methods'][m] = {'summary': summarise(rows), 'status': status,
-                                       'runs': rows}
+                entry['methods'][m] = {'summary': summarise(rows), 'status': status, 'runs': rows}
                 s = entry['methods'][m]['summary']
-                log(f'grid {cell[0]}/{cell[1]} {mode:7s} {m:12s} '
+                log(
+                    f'grid {cell[0]}/{cell[1]} {mode:7s} {m:12s} '
                     f'{s.get("accuracy_mean", float("nan")) * 100:7.3f}% '
-                    f'n={s["n"]} {status} ({time.monotonic() - t0:.1f} s)')
+                    f'n={s["n"]} {status} ({time.monotonic() - t0:.1f} s)'
+                )
             out['cells'].append(entry)
     return out
 
@@ -202,9 +219,13 @@ def run_cost(methods: list[str], targets: tuple[int, ...], limit: float, log) ->
         stopped = None
         for n in targets:
             try:
-                res = subprocess.run([sys.executable, '-c', _COST_CHILD, m, str(n), '7'],
-                                     capture_output=True, text=True, timeout=limit + 30,
-                                     env=env)
+                res = subprocess.run(
+                    [sys.executable, '-c', _COST_CHILD, m, str(n), '7'],
+                    capture_output=True,
+                    text=True,
+                    timeout=limit + 30,
+                    env=env,
+                )
             except subprocess.TimeoutExpired:
                 stopped = f'stopped: {n} targets ({20 * n} detections) exceeded {limit:.0f} s'
                 break
@@ -214,16 +235,24 @@ def run_cost(methods: list[str], targets: tuple[int, ...], limit: float, log) ->
             rec = json.loads(res.stdout.strip().splitlines()[-1])
             rec['targets'] = n
             pts.append(rec)
-            log(f'cost {m:12s} {rec["detections"]:7d} det {rec["seconds"]:8.2f} s '
-                f'{rec["peak_bytes"] / 2**20:8.1f} MiB')
+            log(
+                f'cost {m:12s} {rec["detections"]:7d} det {rec["seconds"]:8.2f} s '
+                f'{rec["peak_bytes"] / 2**20:8.1f} MiB'
+            )
             if rec['seconds'] > limit:
-                stopped = (f'stopped after {n} targets ({rec["detections"]} detections): '
-                           f'{rec["seconds"]:.0f} s > {limit:.0f} s')
+                stopped = (
+                    f'stopped after {n} targets ({rec["detections"]} detections): '
+                    f'{rec["seconds"]:.0f} s > {limit:.0f} s'
+                )
                 break
         fit = _slope([p['detections'] for p in pts], [p['seconds'] for p in pts])
         mfit = _slope([p['detections'] for p in pts], [max(p['peak_bytes'], 1) for p in pts])
-        out['methods'][m] = {'points': pts, 'stopped': stopped, 'time_slope': fit,
-                             'memory_slope': mfit}
+        out['methods'][m] = {
+            'points': pts,
+            'stopped': stopped,
+            'time_slope': fit,
+            'memory_slope': mfit,
+        }
     return out
 
 
@@ -248,6 +277,7 @@ STONESOUP = 'stonesoup==1.9.1'  # the version the committed results/bench was me
 def ensure_stonesoup(log) -> bool:
     try:
         import stonesoup  # noqa: F401
+
         return True
     except ImportError:
         pass
@@ -259,13 +289,17 @@ def ensure_stonesoup(log) -> bool:
         if pins.is_file():  # pip constraints take no extras: 'pkg[extra]==v' -> 'pkg==v'
             constraints.write(re.sub(r'\[[^\]]*\]', '', pins.read_text()))
             constraints.flush()
-        res = subprocess.run([sys.executable, '-m', 'pip', 'install', '--quiet', STONESOUP,
-                              '-c', constraints.name], capture_output=True, text=True)
+        res = subprocess.run(
+            [sys.executable, '-m', 'pip', 'install', '--quiet', STONESOUP, '-c', constraints.name],
+            capture_output=True,
+            text=True,
+        )
     if res.returncode != 0:
         log('stonesoup install failed: ' + res.stderr.strip()[-500:])
         return False
     try:
         import stonesoup  # noqa: F401
+
         return True
     except ImportError:
         return False
@@ -284,8 +318,13 @@ class PeerConfig:
     min_points: int = 2  # MultiMeasurementInitiator confirmation
 
 
-def stonesoup_associate(layout: Layout, det: Detections, stamp_noise: float,
-                        velocity_noise: float, cfg: PeerConfig = PeerConfig()) -> np.ndarray:
+def stonesoup_associate(
+    layout: Layout,
+    det: Detections,
+    stamp_noise: float,
+    velocity_noise: float,
+    cfg: PeerConfig = PeerConfig(),
+) -> np.ndarray:
     """Stone Soup as an expert would set it up for this problem.
 
     Detections are processed in time order, one scan per detection (two sensors can be a
@@ -313,27 +352,48 @@ def stonesoup_associate(layout: Layout, det: Detections, stamp_noise: float,
 
     sx = max(cfg.v_nominal * stamp_noise, cfg.floor_position)
     sv = max(velocity_noise, cfg.floor_velocity)
-    mm = LinearGaussian(ndim_state=2, mapping=(0, 1), noise_covar=np.diag([sx ** 2, sv ** 2]))
+    mm = LinearGaussian(ndim_state=2, mapping=(0, 1), noise_covar=np.diag([sx**2, sv**2]))
     predictor = KalmanPredictor(ConstantVelocity(cfg.q))
     updater = KalmanUpdater(mm)
-    hyp = DistanceHypothesiser(predictor, updater, measure=Mahalanobis(),
-                               missed_distance=cfg.gate)
+    hyp = DistanceHypothesiser(predictor, updater, measure=Mahalanobis(), missed_distance=cfg.gate)
     assoc = GNNWith2DAssignment(hyp)
     base = dt.datetime(2000, 1, 1)
     pos = layout.positions[det.sensor_index]
     scans = []
     for i in np.argsort(det.stamp, kind='stable').tolist():
         ts = base + dt.timedelta(seconds=float(det.stamp[i]))
-        scans.append((ts, {Detection(StateVector([[pos[i]], [det.velocity[i]]]), timestamp=ts,
-                                     measurement_model=mm, metadata={'index': i})}))
+        scans.append(
+            (
+                ts,
+                {
+                    Detection(
+                        StateVector([[pos[i]], [det.velocity[i]]]),
+                        timestamp=ts,
+                        measurement_model=mm,
+                        metadata={'index': i},
+                    )
+                },
+            )
+        )
     gap = dt.timedelta(seconds=cfg.delete_after)
-    prior = GaussianState(StateVector([[0.0], [cfg.v_nominal]]),
-                          CovarianceMatrix(np.diag([sx ** 2, sv ** 2])))
-    init = MultiMeasurementInitiator(prior_state=prior, measurement_model=mm,
-                                     deleter=UpdateTimeDeleter(gap), data_associator=assoc,
-                                     updater=updater, min_points=cfg.min_points)
-    tracker = MultiTargetTracker(initiator=init, deleter=UpdateTimeDeleter(gap),
-                                 detector=scans, data_associator=assoc, updater=updater)
+    prior = GaussianState(
+        StateVector([[0.0], [cfg.v_nominal]]), CovarianceMatrix(np.diag([sx**2, sv**2]))
+    )
+    init = MultiMeasurementInitiator(
+        prior_state=prior,
+        measurement_model=mm,
+        deleter=UpdateTimeDeleter(gap),
+        data_associator=assoc,
+        updater=updater,
+        min_points=cfg.min_points,
+    )
+    tracker = MultiTargetTracker(
+        initiator=init,
+        deleter=UpdateTimeDeleter(gap),
+        detector=scans,
+        data_associator=assoc,
+        updater=updater,
+    )
     seen: set = set()
     for _, tracks in tracker:
         seen |= tracks
@@ -353,6 +413,7 @@ def run_peer(seeds_per_cell: dict, log) -> dict:
         out['error'] = 'stonesoup could not be installed'
         return out
     import stonesoup
+
     out['stonesoup_version'] = stonesoup.__version__
     best = make_associator(BEST)
     for cell, n in seeds_per_cell.items():
@@ -362,23 +423,35 @@ def run_peer(seeds_per_cell: dict, log) -> dict:
             for k in range(n):
                 ds = simulate(cfg, dataset_seed(*cell, k))
                 t0 = time.perf_counter()
-                lab = stonesoup_associate(ds.layout, ds.detections, cfg.stamp_noise,
-                                          cfg.velocity_noise)
+                lab = stonesoup_associate(
+                    ds.layout, ds.detections, cfg.stamp_noise, cfg.velocity_noise
+                )
                 rows_p.append(_score_row(ds, lab, time.perf_counter() - t0))
                 t0 = time.perf_counter()
                 lab = best.associate(ds.layout, ds.detections, ds.n_targets)
                 rows_b.append(_score_row(ds, lab, time.perf_counter() - t0))
             sp, sb = summarise(rows_p), summarise(rows_b)
             det = sum(r['detections'] for r in rows_p)
-            entry = {'targets': cell[0], 'sensors': cell[1], 'mode': mode, 'n': n,
-                     'stonesoup': sp, BEST: sb,
-                     'stonesoup_s_per_1000_det': 1000 * sum(r['seconds'] for r in rows_p) / det,
-                     'speedup': (sum(r['seconds'] for r in rows_p)
-                                 / max(sum(r['seconds'] for r in rows_b), 1e-9)),
-                     'runs_stonesoup': rows_p, 'runs_best': rows_b}
+            entry = {
+                'targets': cell[0],
+                'sensors': cell[1],
+                'mode': mode,
+                'n': n,
+                'stonesoup': sp,
+                BEST: sb,
+                'stonesoup_s_per_1000_det': 1000 * sum(r['seconds'] for r in rows_p) / det,
+                'speedup': (
+                    sum(r['seconds'] for r in rows_p)
+                    / max(sum(r['seconds'] for r in rows_b), 1e-9)
+                ),
+                'runs_stonesoup': rows_p,
+                'runs_best': rows_b,
+            }
             out['cells'].append(entry)
-            log(f'peer {cell[0]}/{cell[1]} {mode:7s} stonesoup {sp["accuracy_mean"] * 100:.3f}% '
-                f'{BEST} {sb["accuracy_mean"] * 100:.3f}% speedup {entry["speedup"]:.0f}x')
+            log(
+                f'peer {cell[0]}/{cell[1]} {mode:7s} stonesoup {sp["accuracy_mean"] * 100:.3f}% '
+                f'{BEST} {sb["accuracy_mean"] * 100:.3f}% speedup {entry["speedup"]:.0f}x'
+            )
     return out
 
 
@@ -394,18 +467,28 @@ def run_live(root: Path, out_dir: Path, log) -> dict:
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     target = out_dir / 'live.json'
     try:
-        res = subprocess.run([sys.executable, str(script), '--out', str(out_dir)],
-                             capture_output=True, text=True, timeout=1200, env=env, cwd=root)
+        res = subprocess.run(
+            [sys.executable, str(script), '--out', str(out_dir)],
+            capture_output=True,
+            text=True,
+            timeout=1200,
+            env=env,
+            cwd=root,
+        )
     except subprocess.TimeoutExpired:
         return {'status': 'bench_live.py exceeded 1200 s'}
     if res.returncode != 0 or not target.exists():
-        return {'status': f'bench_live.py failed (exit {res.returncode})',
-                'stderr': res.stderr[-2000:]}
+        return {
+            'status': f'bench_live.py failed (exit {res.returncode})',
+            'stderr': res.stderr[-2000:],
+        }
     data = json.loads(target.read_text())
     data['status'] = 'ok'
     a = data.get('association_node', {})
-    log(f"live: ingest ratio {data.get('ingest_ratio')} p50 {a.get('latency_p50')} s "
-        f"p95 {a.get('latency_p95')} s")
+    log(
+        f'live: ingest ratio {data.get("ingest_ratio")} p50 {a.get("latency_p50")} s '
+        f'p95 {a.get("latency_p95")} s'
+    )
     return data
 
 
@@ -419,8 +502,9 @@ def _cell(grid: dict, t: int, s: int, mode: str) -> dict | None:
     return None
 
 
-def _acc(grid: dict, t: int, s: int, mode: str, m: str, key: str = 'accuracy_mean'
-         ) -> float | None:
+def _acc(
+    grid: dict, t: int, s: int, mode: str, m: str, key: str = 'accuracy_mean'
+) -> float | None:
     c = _cell(grid, t, s, mode)
     if not c or m not in c['methods']:
         return None
@@ -436,8 +520,7 @@ def evaluate_targets(grid: dict, cost: dict, peer: dict, live: dict) -> list[dic
     def fmt(x: float | None) -> str:
         return 'n/a' if x is None else f'{100 * x:.3f}%'
 
-    a, lo = _acc(grid, 50, 20, 'paper', BEST), _acc(grid, 50, 20, 'paper', BEST,
-                                                    'accuracy_min')
+    a, lo = _acc(grid, 50, 20, 'paper', BEST), _acc(grid, 50, 20, 'paper', BEST, 'accuracy_min')
     check('paper 50/20: best mean >= 99.9%', None if a is None else a >= 0.999, fmt(a))
     check('paper 50/20: no dataset < 99.5%', None if lo is None else lo >= 0.995, fmt(lo))
     a = _acc(grid, 200, 50, 'paper', BEST)
@@ -448,40 +531,67 @@ def evaluate_targets(grid: dict, cost: dict, peer: dict, live: dict) -> list[dic
     check('clutter 50/20: best mean >= 99.3%', None if a is None else a >= 0.993, fmt(a))
     r, p = _acc(grid, 50, 20, 'clutter', 'mlkm_robust'), _acc(grid, 50, 20, 'clutter', 'mlkm')
     ok = None if r is None or p is None else r - p >= 0.10
-    check('clutter 50/20: mlkm_robust beats mlkm by >= 10 points', ok,
-          f'{fmt(r)} vs {fmt(p)}' + ('' if ok is None else f' (+{100 * (r - p):.1f})'))
+    check(
+        'clutter 50/20: mlkm_robust beats mlkm by >= 10 points',
+        ok,
+        f'{fmt(r)} vs {fmt(p)}' + ('' if ok is None else f' (+{100 * (r - p):.1f})'),
+    )
     worse = []
     for c in grid.get('cells', []):
         b = c['methods'].get(BEST, {}).get('summary', {}).get('accuracy_mean')
         s = c['methods'].get(BASELINE, {}).get('summary', {}).get('accuracy_mean')
         if b is not None and s is not None and b < s:
-            worse.append(f"{c['targets']}/{c['sensors']} {c['mode']}: {fmt(b)} < {fmt(s)}")
+            worse.append(f'{c["targets"]}/{c["sensors"]} {c["mode"]}: {fmt(b)} < {fmt(s)}')
     check(f'{BEST} >= {BASELINE} on every grid cell', not worse, '; '.join(worse) or 'all cells')
     if peer.get('cells'):
-        bad = [f"{c['targets']}/{c['sensors']} {c['mode']}" for c in peer['cells']
-               if c[BEST]['accuracy_mean'] < c['stonesoup']['accuracy_mean']]
-        check('vs Stone Soup: at least as accurate on every cell', not bad,
-              '; '.join(f"{c['targets']}/{c['sensors']} {c['mode']}: "
-                        f"{fmt(c[BEST]['accuracy_mean'])} vs "
-                        f"{fmt(c['stonesoup']['accuracy_mean'])}" for c in peer['cells']))
+        bad = [
+            f'{c["targets"]}/{c["sensors"]} {c["mode"]}'
+            for c in peer['cells']
+            if c[BEST]['accuracy_mean'] < c['stonesoup']['accuracy_mean']
+        ]
+        check(
+            'vs Stone Soup: at least as accurate on every cell',
+            not bad,
+            '; '.join(
+                f'{c["targets"]}/{c["sensors"]} {c["mode"]}: '
+                f'{fmt(c[BEST]["accuracy_mean"])} vs '
+                f'{fmt(c["stonesoup"]["accuracy_mean"])}'
+                for c in peer['cells']
+            ),
+        )
         sp = min(c['speedup'] for c in peer['cells'])
         check('vs Stone Soup: >= 100x faster', sp >= 100, f'min speedup {sp:.0f}x')
     else:
         check('vs Stone Soup', None, peer.get('error', 'not run'))
     a = _cell(grid, 1000, 100, 'paper')
-    sec = None if a is None or BEST not in a['methods'] else (
-        a['methods'][BEST]['summary'].get('seconds_mean'))
-    check('scale: 1000x100 (1e5 detections) < 30 s', None if sec is None else sec < 30,
-          'n/a' if sec is None else f'{sec:.1f} s (grid run, child process)')
+    sec = (
+        None
+        if a is None or BEST not in a['methods']
+        else (a['methods'][BEST]['summary'].get('seconds_mean'))
+    )
+    check(
+        'scale: 1000x100 (1e5 detections) < 30 s',
+        None if sec is None else sec < 30,
+        'n/a' if sec is None else f'{sec:.1f} s (grid run, child process)',
+    )
     sl = cost.get('methods', {}).get(BEST, {}).get('time_slope')
-    check('scale: fitted log-log cost slope <= 1.5', None if sl is None else sl <= 1.5,
-          'n/a' if sl is None else f'{sl:.2f}')
+    check(
+        'scale: fitted log-log cost slope <= 1.5',
+        None if sl is None else sl <= 1.5,
+        'n/a' if sl is None else f'{sl:.2f}',
+    )
     ratio = live.get('ingest_ratio')
     p95 = live.get('association_node', {}).get('latency_p95')
-    check('live: >= 70% of bare subscriber ingest', None if ratio is None else ratio >= 0.7,
-          live.get('status', '') if ratio is None else f'{ratio:.2f}')
-    check('live: p95 latency <= 100 ms', None if p95 is None else p95 <= 0.1,
-          live.get('status', '') if p95 is None else f'{1000 * p95:.1f} ms')
+    check(
+        'live: >= 70% of bare subscriber ingest',
+        None if ratio is None else ratio >= 0.7,
+        live.get('status', '') if ratio is None else f'{ratio:.2f}',
+    )
+    check(
+        'live: p95 latency <= 100 ms',
+        None if p95 is None else p95 <= 0.1,
+        live.get('status', '') if p95 is None else f'{1000 * p95:.1f} ms',
+    )
     return out
 
 
@@ -490,6 +600,7 @@ def evaluate_targets(grid: dict, cost: dict, peer: dict, live: dict) -> list[dic
 
 def plot_all(out_dir: Path, grid: dict, cost: dict) -> list[str]:
     import matplotlib
+
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
@@ -513,7 +624,7 @@ def plot_all(out_dir: Path, grid: dict, cost: dict) -> list[str]:
                 err_hi.append(100 * (s['accuracy_max'] - s['accuracy_mean']))
             ax.bar(xs, mean, width, yerr=[err_lo, err_hi], capsize=2, label=m)
         ax.set_xticks(range(len(cells)))
-        ax.set_xticklabels([f"{c['targets']} targets / {c['sensors']} sensors" for c in cells])
+        ax.set_xticklabels([f'{c["targets"]} targets / {c["sensors"]} sensors' for c in cells])
         ax.set_ylabel('accuracy [%] (bar: mean, whiskers: min..max)')
         ax.set_ylim(0, 101)
         ax.set_title(f'Accuracy grid, {mode} mode (missing bar: stopped at the time limit)')
@@ -523,16 +634,17 @@ def plot_all(out_dir: Path, grid: dict, cost: dict) -> list[str]:
         fig.savefig(out_dir / name, dpi=110)
         plt.close(fig)
         files.append(name)
-    for key, label, fname in (('seconds', 'runtime [s]', 'cost_runtime.png'),
-                              ('peak_bytes', 'peak memory above start [MiB]',
-                               'cost_memory.png')):
+    for key, label, fname in (
+        ('seconds', 'runtime [s]', 'cost_runtime.png'),
+        ('peak_bytes', 'peak memory above start [MiB]', 'cost_memory.png'),
+    ):
         fig, ax = plt.subplots(figsize=(8, 5.5))
         for m, rec in cost.get('methods', {}).items():
             pts = rec['points']
             if not pts:
                 continue
             x = [p['detections'] for p in pts]
-            y = [p[key] / (2 ** 20 if key == 'peak_bytes' else 1) for p in pts]
+            y = [p[key] / (2**20 if key == 'peak_bytes' else 1) for p in pts]
             slope = rec['time_slope' if key == 'seconds' else 'memory_slope']
             tag = f'{m} (slope {slope:.2f})' if slope is not None else m
             if rec['stopped']:
@@ -557,31 +669,47 @@ def _pct(x: float | None) -> str:
     return '—' if x is None else f'{100 * x:.2f}'
 
 
-def write_readme(out_dir: Path, grid: dict, cost: dict, peer: dict, live: dict,
-                 targets: list[dict], meta: dict) -> None:
-    L = ['# Benchmarks (`make bench`)', '',
-         f"Generated by `mlkm bench --out {meta['out']}`{' --quick' if meta['quick'] else ''}"
-         f" on {meta['date']}; total {meta['seconds'] / 60:.1f} min on a shared 2-core machine. "
-         'Regenerate with `make bench` (about 20-25 min; `mlkm bench --quick` for a smoke '
-         'run). Every figure below comes from the JSON files next to this README.', '',
-         '## Section 5 targets', '', '| target | met | value |', '| --- | --- | --- |']
+def write_readme(
+    out_dir: Path, grid: dict, cost: dict, peer: dict, live: dict, targets: list[dict], meta: dict
+) -> None:
+    L = [
+        '# Benchmarks (`make bench`)',
+        '',
+        f'Generated by `mlkm bench --out {meta["out"]}`{" --quick" if meta["quick"] else ""}'
+        f' on {meta["date"]}; total {meta["seconds"] / 60:.1f} min on a shared 2-core machine. '
+        'Regenerate with `make bench` (about 20-25 min; `mlkm bench --quick` for a smoke '
+        'run). Every figure below comes from the JSON files next to this README.',
+        '',
+        '## Section 5 targets',
+        '',
+        '| target | met | value |',
+        '| --- | --- | --- |',
+    ]
     for t in targets:
         met = {True: 'yes', False: '**no**', None: 'n/a'}[t['met']]
-        L.append(f"| {t['target']} | {met} | {t['value']} |")
-    L += ['', '## Accuracy grid', '',
-          'Mean accuracy [%] (min..max) over seeded datasets; the same datasets for every '
-          'method. Clutter mode: 5% misses, 0.05 false alarms per target per sensor, 0.2 s '
-          'stamp noise, 0.5 m/s speed noise. Time budget per (method, cell, mode): '
-          + ', '.join(f'{k}: {v:.0f} s' for k, v in grid.get('budget_s', {}).items())
-          + '; a method over budget is stopped and marked.', '']
+        L.append(f'| {t["target"]} | {met} | {t["value"]} |')
+    L += [
+        '',
+        '## Accuracy grid',
+        '',
+        'Mean accuracy [%] (min..max) over seeded datasets; the same datasets for every '
+        'method. Clutter mode: 5% misses, 0.05 false alarms per target per sensor, 0.2 s '
+        'stamp noise, 0.5 m/s speed noise. Time budget per (method, cell, mode): '
+        + ', '.join(f'{k}: {v:.0f} s' for k, v in grid.get('budget_s', {}).items())
+        + '; a method over budget is stopped and marked.',
+        '',
+    ]
     for mode in MODES:
         cells = [c for c in grid.get('cells', []) if c['mode'] == mode]
         if not cells:
             continue
         L.append(f'### {mode} mode')
         L.append('')
-        head = '| method | ' + ' | '.join(
-            f"{c['targets']}/{c['sensors']} (n={len(c['seeds'])})" for c in cells) + ' |'
+        head = (
+            '| method | '
+            + ' | '.join(f'{c["targets"]}/{c["sensors"]} (n={len(c["seeds"])})' for c in cells)
+            + ' |'
+        )
         L += [head, '|' + ' --- |' * (len(cells) + 1)]
         for m in cells[0]['methods']:
             row = [m]
@@ -590,10 +718,12 @@ def write_readme(out_dir: Path, grid: dict, cost: dict, peer: dict, live: dict,
                 if s['n'] == 0:
                     row.append('stopped (time limit)')
                     continue
-                txt = (f"{_pct(s['accuracy_mean'])} ({_pct(s['accuracy_min'])}.."
-                       f"{_pct(s['accuracy_max'])}) {s['seconds_mean']:.2f} s")
+                txt = (
+                    f'{_pct(s["accuracy_mean"])} ({_pct(s["accuracy_min"])}..'
+                    f'{_pct(s["accuracy_max"])}) {s["seconds_mean"]:.2f} s'
+                )
                 if c['methods'][m]['status'] != 'ok':
-                    txt += f" [{s['n']} of {len(c['seeds'])}: time limit]"
+                    txt += f' [{s["n"]} of {len(c["seeds"])}: time limit]'
                 row.append(txt)
             L.append('| ' + ' | '.join(row) + ' |')
         L.append('')
@@ -601,68 +731,93 @@ def write_readme(out_dir: Path, grid: dict, cost: dict, peer: dict, live: dict,
         L.append('')
         c = _cell(grid, 50, 20, mode)
         if c:
-            L += ['| method | link precision | link recall | identity switches | ARI |',
-                  '| --- | --- | --- | --- | --- |']
+            L += [
+                '| method | link precision | link recall | identity switches | ARI |',
+                '| --- | --- | --- | --- | --- |',
+            ]
             for m, r in c['methods'].items():
                 s = r['summary']
                 if s['n']:
-                    L.append(f"| {m} | {s['link_precision']:.4f} | {s['link_recall']:.4f} | "
-                             f"{s['identity_switches']:.2f} | {s['adjusted_rand_index']:.4f} |")
+                    L.append(
+                        f'| {m} | {s["link_precision"]:.4f} | {s["link_recall"]:.4f} | '
+                        f'{s["identity_switches"]:.2f} | {s["adjusted_rand_index"]:.4f} |'
+                    )
         L.append('')
         L.append(f'![grid {mode}](grid_{mode}.png)')
         L.append('')
-    L += ['## Cost growth (20 sensors, one core)', '',
-          f"Fresh process per point, one thread; limit {cost.get('time_limit_s', 0):.0f} s per "
-          'point. Slope: least-squares fit of log(runtime) on log(detections) over the points '
-          'with >= 3000 detections.', '',
-          '| method | detections reached | runtime at largest [s] | time slope | '
-          'memory slope | peak memory at largest [MiB] | note |',
-          '| --- | --- | --- | --- | --- | --- | --- |']
+    L += [
+        '## Cost growth (20 sensors, one core)',
+        '',
+        f'Fresh process per point, one thread; limit {cost.get("time_limit_s", 0):.0f} s per '
+        'point. Slope: least-squares fit of log(runtime) on log(detections) over the points '
+        'with >= 3000 detections.',
+        '',
+        '| method | detections reached | runtime at largest [s] | time slope | '
+        'memory slope | peak memory at largest [MiB] | note |',
+        '| --- | --- | --- | --- | --- | --- | --- |',
+    ]
     for m, rec in cost.get('methods', {}).items():
         pts = rec['points']
         if pts:
             p = pts[-1]
-            ts = '—' if rec['time_slope'] is None else f"{rec['time_slope']:.2f}"
-            ms = '—' if rec['memory_slope'] is None else f"{rec['memory_slope']:.2f}"
-            L.append(f"| {m} | {p['detections']} | {p['seconds']:.2f} | {ts} | {ms} | "
-                     f"{p['peak_bytes'] / 2**20:.1f} | {rec['stopped'] or ''} |")
+            ts = '—' if rec['time_slope'] is None else f'{rec["time_slope"]:.2f}'
+            ms = '—' if rec['memory_slope'] is None else f'{rec["memory_slope"]:.2f}'
+            L.append(
+                f'| {m} | {p["detections"]} | {p["seconds"]:.2f} | {ts} | {ms} | '
+                f'{p["peak_bytes"] / 2**20:.1f} | {rec["stopped"] or ""} |'
+            )
         else:
-            L.append(f"| {m} | — | — | — | — | — | {rec['stopped'] or ''} |")
-    L += ['', '![runtime](cost_runtime.png)', '', '![memory](cost_memory.png)', '',
-          '## Stone Soup side by side', '']
+            L.append(f'| {m} | — | — | — | — | — | {rec["stopped"] or ""} |')
+    L += [
+        '',
+        '![runtime](cost_runtime.png)',
+        '',
+        '![memory](cost_memory.png)',
+        '',
+        '## Stone Soup side by side',
+        '',
+    ]
     if peer.get('cells'):
-        L += [f"Stone Soup {peer.get('stonesoup_version', '')}, set up in "
-              '`mlkm_core.bench.stonesoup_associate` (1-D constant velocity, measurement of '
-              'position and speed, Mahalanobis-gated `GNNWith2DAssignment`, '
-              '`MultiMeasurementInitiator`, `UpdateTimeDeleter`, told the stamp and speed '
-              f"noise); config `{json.dumps(peer['config'])}`. Same datasets (the first ones "
-              'of each grid cell), same run.', '',
-              f'| cell | mode | n | Stone Soup accuracy | {BEST} accuracy | Stone Soup s / 1000 '
-              f'det | speedup of {BEST} |', '| --- | --- | --- | --- | --- | --- | --- |']
+        L += [
+            f'Stone Soup {peer.get("stonesoup_version", "")}, set up in '
+            '`mlkm_experiments.bench.stonesoup_associate` (1-D constant velocity, measurement of '
+            'position and speed, Mahalanobis-gated `GNNWith2DAssignment`, '
+            '`MultiMeasurementInitiator`, `UpdateTimeDeleter`, told the stamp and speed '
+            f'noise); config `{json.dumps(peer["config"])}`. Same datasets (the first ones '
+            'of each grid cell), same run.',
+            '',
+            f'| cell | mode | n | Stone Soup accuracy | {BEST} accuracy | Stone Soup s / 1000 '
+            f'det | speedup of {BEST} |',
+            '| --- | --- | --- | --- | --- | --- | --- |',
+        ]
         for c in peer['cells']:
-            L.append(f"| {c['targets']}/{c['sensors']} | {c['mode']} | {c['n']} | "
-                     f"{_pct(c['stonesoup']['accuracy_mean'])} | "
-                     f"{_pct(c[BEST]['accuracy_mean'])} | "
-                     f"{c['stonesoup_s_per_1000_det']:.2f} | {c['speedup']:.0f}x |")
+            L.append(
+                f'| {c["targets"]}/{c["sensors"]} | {c["mode"]} | {c["n"]} | '
+                f'{_pct(c["stonesoup"]["accuracy_mean"])} | '
+                f'{_pct(c[BEST]["accuracy_mean"])} | '
+                f'{c["stonesoup_s_per_1000_det"]:.2f} | {c["speedup"]:.0f}x |'
+            )
     else:
         L.append(peer.get('error', 'not run'))
     L += ['', '## Live throughput', '']
     a = live.get('association_node')
     if a:
         sc = live.get('scenario', {})
-        L += [f"`scripts/bench_live.py` (details: [live.md](live.md)): `sensor_sim` at "
-              f"real_time_factor 0, {sc.get('targets')} targets x {sc.get('sensors')} sensors, "
-              f"{sc.get('episodes')} episodes, method `{sc.get('method')}`; medians of "
-              f"{sc.get('repeats')} interleaved runs.", '',
-              '| figure | value |', '| --- | --- |',
-              f"| bare rclpy subscriber ingest [msg/s] | "
-              f"{live['bare_subscriber']['ingest_rate']} |",
-              f"| association node ingest [msg/s] | {a['ingest_rate']} |",
-              f"| ratio (target >= 0.70) | {live.get('ingest_ratio')} |",
-              f"| latency p50, segment complete -> tracks [ms] | "
-              f"{1000 * a['latency_p50']:.1f} |",
-              f"| latency p95 (target <= 100 ms) [ms] | {1000 * a['latency_p95']:.1f} |",
-              f"| nothing lost | {live.get('nothing_lost')} |"]
+        L += [
+            f'`scripts/bench_live.py` (details: [live.md](live.md)): `sensor_sim` at '
+            f'real_time_factor 0, {sc.get("targets")} targets x {sc.get("sensors")} sensors, '
+            f'{sc.get("episodes")} episodes, method `{sc.get("method")}`; medians of '
+            f'{sc.get("repeats")} interleaved runs.',
+            '',
+            '| figure | value |',
+            '| --- | --- |',
+            f'| bare rclpy subscriber ingest [msg/s] | {live["bare_subscriber"]["ingest_rate"]} |',
+            f'| association node ingest [msg/s] | {a["ingest_rate"]} |',
+            f'| ratio (target >= 0.70) | {live.get("ingest_ratio")} |',
+            f'| latency p50, segment complete -> tracks [ms] | {1000 * a["latency_p50"]:.1f} |',
+            f'| latency p95 (target <= 100 ms) [ms] | {1000 * a["latency_p95"]:.1f} |',
+            f'| nothing lost | {live.get("nothing_lost")} |',
+        ]
     else:
         L.append(str(live.get('status', 'not run')))
     L.append('')
@@ -676,8 +831,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog='mlkm bench', description=__doc__.splitlines()[0])
     ap.add_argument('--out', default='results/bench', help='output directory')
     ap.add_argument('--quick', action='store_true', help='small smoke version')
-    ap.add_argument('--only', choices=('grid', 'cost', 'peer', 'live'), action='append',
-                    help='run only these parts (repeatable); default: all')
+    ap.add_argument(
+        '--only',
+        choices=('grid', 'cost', 'peer', 'live'),
+        action='append',
+        help='run only these parts (repeatable); default: all',
+    )
     ap.add_argument('--methods', help='comma-separated subset of methods (default: all)')
     args = ap.parse_args(argv)
     out_dir = Path(args.out)
@@ -716,18 +875,27 @@ def main(argv: list[str] | None = None) -> int:
         save('cost.json', run_cost(methods, targets, 20.0 if args.quick else COST_LIMIT, log))
     if 'live' in parts:
         save('live.json', run_live(root, out_dir, log))
-    grid, cost, peer, live = (load('grid.json'), load('cost.json'), load('peer.json'),
-                              load('live.json'))
+    grid, cost, peer, live = (
+        load('grid.json'),
+        load('cost.json'),
+        load('peer.json'),
+        load('live.json'),
+    )
     targets = evaluate_targets(grid, cost, peer, live)
     seconds = time.monotonic() - t_start
-    meta = {'out': args.out, 'quick': args.quick, 'seconds': seconds,
-            'date': dt.datetime.now(dt.UTC).strftime('%Y-%m-%d %H:%M UTC'),
-            'parts': sorted(parts), 'python': sys.version.split()[0]}
+    meta = {
+        'out': args.out,
+        'quick': args.quick,
+        'seconds': seconds,
+        'date': dt.datetime.now(dt.UTC).strftime('%Y-%m-%d %H:%M UTC'),
+        'parts': sorted(parts),
+        'python': sys.version.split()[0],
+    }
     save('summary.json', {'meta': meta, 'targets': targets})
     plot_all(out_dir, grid, cost)
     write_readme(out_dir, grid, cost, peer, live, targets, meta)
     for t in targets:
-        log(f"target: {t['target']}: {t['met']} ({t['value']})")
+        log(f'target: {t["target"]}: {t["met"]} ({t["value"]})')
     log(f'done in {seconds / 60:.1f} min; wrote {out_dir}')
     logf.close()
     return 0
@@ -735,4 +903,3 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == '__main__':
     sys.exit(main())
-

@@ -1,0 +1,1 @@
+"""Experiments and benchmarks: the paper reproduction, make bench, process launchers."""

@@ -1,0 +1,1 @@
+"""ROS glue shared by the nodes: QoS profiles, message conversions, parameter helpers."""
