@@ -22,7 +22,7 @@ from road_sensors import sensor_sim
 )
 def test_param_file_matches_declared_defaults(package, node, specs) -> None:
     path = Path(get_package_share_directory(package)) / 'config' / f'{node}.param.yaml'
-    params = yaml.safe_load(path.read_text())[node]['ros__parameters']
+    params = yaml.safe_load(path.read_text())['/**']['ros__parameters']
     declared = {s.name: s.default for s in specs}
     assert params == declared, f'update {path.name} to the declared defaults'
     assert all(type(params[k]) is type(v) for k, v in declared.items())

@@ -206,7 +206,7 @@ class AssociationNode(Node):
                     self._subscribe(name)
 
     def _on_reject(self, reason: str, detail: str) -> None:
-        self.get_logger().warn(
+        self.get_logger().warning(
             f'detection rejected ({reason}): {detail}; rejected so far: '
             f'{dict(self._assembler.rejected)}',
             throttle_duration_sec=2.0,

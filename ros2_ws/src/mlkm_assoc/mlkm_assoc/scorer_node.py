@@ -121,7 +121,7 @@ class ScorerNode(Node):
             if now - t_rx > self._config.truth_timeout:
                 have = len(self._truth.get(episode, {}))
                 want = self._expected.get(episode)
-                self.get_logger().warn(
+                self.get_logger().warning(
                     f'episode {episode}: scoring with {have} truth messages '
                     f'({"unknown" if want is None else want} expected) after waiting '
                     f'{self._config.truth_timeout:g} s'

@@ -290,7 +290,7 @@ class SensorSimNode(Node):
                     return
                 self._publish_episode(k, dataset)
             if not self._wait_acked():
-                self.get_logger().warn('not every message was acknowledged in time')
+                self.get_logger().warning('not every message was acknowledged in time')
             self.get_logger().info(
                 f'published {self._published} detections in {len(self._datasets)} episodes'
             )

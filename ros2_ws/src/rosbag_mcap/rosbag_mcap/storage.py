@@ -769,8 +769,3 @@ class BagReader:
                     f'{emitted} messages; the rest of the file is skipped'
                 )
             # A scanned file stops where the scan stopped: already reported.
-
-
-def is_hidden_topic(name: str) -> bool:
-    """True for topics with a token starting with '_' (rosbag2 skips them by default)."""
-    return any(token.startswith('_') for token in name.split('/') if token)
