@@ -14,6 +14,8 @@ import numpy as np
 #: Label of a detection that no track took, and ``target`` of a false alarm.
 UNASSIGNED = -1
 FALSE_ALARM = -1
+#: ``Detections.lane`` of a detection whose lane is not known.
+UNKNOWN_LANE = -1
 
 
 @dataclass(frozen=True)
@@ -65,12 +67,19 @@ class Layout:
 
 @dataclass
 class Detections:
-    """Detections as parallel arrays; ``target`` is ground truth and may be absent."""
+    """Detections as parallel arrays; ``target`` is ground truth and may be absent.
+
+    ``lane`` (index from the right, 0 = rightmost, ``UNKNOWN_LANE`` = -1) and ``length``
+    (vehicle length [m], NaN = unknown) are optional per-detection measurements that
+    sensors reporting them (loop detectors) fill in; the associators ignore them.
+    """
 
     sensor_index: np.ndarray  # int, index into Layout.positions
     stamp: np.ndarray  # passage time [s]
     velocity: np.ndarray  # measured speed [m/s]
     target: np.ndarray | None = None  # true target id, FALSE_ALARM (-1) for clutter
+    lane: np.ndarray | None = None  # lane index from the right, -1 = unknown
+    length: np.ndarray | None = None  # measured vehicle length [m], NaN = unknown
 
     def __post_init__(self) -> None:
         self.sensor_index = np.asarray(self.sensor_index, dtype=np.int64)
@@ -83,6 +92,16 @@ class Detections:
             self.target = np.asarray(self.target, dtype=np.int64)
             if self.target.shape != (n,):
                 raise ValueError('target must be 1-D with one entry per detection')
+        if self.lane is not None:
+            self.lane = np.asarray(self.lane, dtype=np.int64)
+            if self.lane.shape != (n,):
+                raise ValueError('lane must be 1-D with one entry per detection')
+            if np.any(self.lane < UNKNOWN_LANE):
+                raise ValueError('lane must be >= 0, or -1 for unknown')
+        if self.length is not None:
+            self.length = np.asarray(self.length, dtype=float)
+            if self.length.shape != (n,):
+                raise ValueError('length must be 1-D with one entry per detection')
 
     def __len__(self) -> int:
         return int(self.sensor_index.size)
@@ -93,18 +112,37 @@ class Detections:
             self.stamp[mask_or_index],
             self.velocity[mask_or_index],
             None if self.target is None else self.target[mask_or_index],
+            None if self.lane is None else self.lane[mask_or_index],
+            None if self.length is None else self.length[mask_or_index],
         )
 
     @staticmethod
     def concatenate(parts: list[Detections]) -> Detections:
+        """Join detections; a lane or length column present in any part is kept, with the
+        unknown value (-1, NaN) for the parts that lack it."""
         if not parts:
             return Detections(np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
         with_truth = all(p.target is not None for p in parts)
+        lane = None
+        if any(p.lane is not None for p in parts):
+            lane = np.concatenate(
+                [
+                    np.full(len(p), UNKNOWN_LANE, np.int64) if p.lane is None else p.lane
+                    for p in parts
+                ]
+            )
+        length = None
+        if any(p.length is not None for p in parts):
+            length = np.concatenate(
+                [np.full(len(p), np.nan) if p.length is None else p.length for p in parts]
+            )
         return Detections(
             np.concatenate([p.sensor_index for p in parts]),
             np.concatenate([p.stamp for p in parts]),
             np.concatenate([p.velocity for p in parts]),
             np.concatenate([p.target for p in parts]) if with_truth else None,
+            lane,
+            length,
         )
 
 
