@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .measurement import DOUBLE_REPORT, PASSAGE, Passages
+from .measurement import DOUBLE_REPORT, MIN_SPEED, PASSAGE, Passages
 from .network import SumoError, binary, scenario_files, sumo_env
 from .scenarios import Road, loop_id, write_detectors
 
@@ -57,7 +57,7 @@ class SumoRun:
         self._schedule: list[float] = []  # future departure times not yet handed to SUMO
         self.last_departure = 0.0  # latest scheduled departure [s]
         self._next_id = 0
-        self._on: dict[str, dict[str, float]] = {}  # vehicle -> loop -> entry time
+        self._reported: dict[str, set[tuple[str, float]]] = {}  # vehicle -> (loop, entry)
         self._seen: dict[str, set[int]] = {}  # vehicle -> stations that reported it
         self._loops: dict[str, tuple[int, int]] = {}
         self._tmp: tempfile.TemporaryDirectory | None = None
@@ -185,27 +185,31 @@ class SumoRun:
         vehicle_data = libsumo.inductionloop.getVehicleData
         for lid, (station, lane) in self._loops.items():
             for vid, length, entry, leave, _vtype in vehicle_data(lid):
-                on = self._on.setdefault(vid, {})
-                if entry < 0 or on.get(lid) == entry:
-                    if leave >= 0:
-                        on.pop(lid, None)
+                # A loop lists a vehicle in every step it touches it, and once more after a
+                # lane change took it away: report each (loop, entry time) once.
+                reported = self._reported.setdefault(vid, set())
+                if entry < 0 or (lid, entry) in reported:
                     continue
-                if leave < 0:
-                    on[lid] = entry
-                # An inductionLoop stamps a vehicle that crosses it during the step ending at
-                # `now` one step late; one that appears on it by a lane change, at `now`.
-                t = entry - self.step_length if entry > now + 1e-9 else entry
+                reported.add((lid, entry))
+                # An inductionLoop stamps a vehicle that crossed it with the interpolated
+                # crossing time plus one step, and one that appeared on it by a lane change
+                # with the time of the change, a step boundary (as the instant loop does).
+                steps = entry / self.step_length
+                t = entry if abs(steps - round(steps)) < 1e-6 else entry - self.step_length
                 try:
                     speed = libsumo.vehicle.getSpeed(vid)
                 except libsumo.TraCIException:  # left the network in this very step
-                    speed = length / (leave - entry) if leave > entry else float('nan')
+                    speed = length / (leave - entry) if leave > entry else MIN_SPEED
+                # A vehicle that stops right behind the loop (stop-and-go) ends the step at
+                # 0 m/s; a loop reports a positive speed.
+                speed = max(speed, MIN_SPEED)
                 seen = self._seen.setdefault(vid, set())
                 kind = DOUBLE_REPORT if station in seen else PASSAGE
                 seen.add(station)
                 rows.append((t, station, lane, speed, length, vid, kind))
         for vid in libsumo.simulation.getArrivedIDList():
             self.arrived += 1
-            self._on.pop(vid, None)
+            self._reported.pop(vid, None)
             self._seen.pop(vid, None)
         if not rows:
             return Passages()
