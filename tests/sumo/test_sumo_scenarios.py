@@ -114,7 +114,7 @@ def test_ramps_layout_reports_lanes_and_openings(cache):
     assert road.leave_between.tolist() == [False, False, False, True, True]
     assert road.loops[1] == ('m1_0', 'm1_1', 'm1_2', 'm1_3')
     congested = make_road('congested', stations_at=[3000, 3800], cache_dir=cache)
-    assert congested.lanes.tolist() == [3, 2]
+    assert congested.lanes.tolist() == [3, 1]
 
 
 def test_loop_passages_equal_sumos_instant_loop_records(cache, tmp_path):
@@ -172,3 +172,17 @@ def test_episodes_release_batches_that_all_leave(cache):
         assert ep.stats['vehicles_arrived'] == 15 and ep.stats['in_network'] == 0
     assert second.detections.stamp.min() > first.detections.stamp.max()
     assert set(first.vehicle_ids).isdisjoint(second.vehicle_ids)
+
+
+def test_congested_queues_upstream_of_the_road_works(cache):
+    kw = {'n_vehicles': 300, 'stations_at': [3300, 4500], 'seed': 1, 'cache_dir': cache}
+    jam, free = generate('congested', **kw), generate('highway', **kw)
+    for ds in (jam, free):
+        assert ds.n_targets == 300 and ds.stats['teleports'] == 0
+    v = {
+        name: [ds.detections.velocity[ds.detections.sensor_index == i] for i in (0, 1)]
+        for name, ds in (('jam', jam), ('free', free))
+    }
+    assert np.percentile(v['jam'][0], 5) < 8.0  # stop-and-go before the works
+    assert np.median(v['jam'][0]) < 0.6 * np.median(v['free'][0])
+    assert np.percentile(v['jam'][1], 5) > 20.0  # free flow again after them

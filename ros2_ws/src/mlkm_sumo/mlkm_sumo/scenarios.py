@@ -44,9 +44,9 @@ SCENARIOS: dict[str, Scenario] = {
         ),
         Scenario(
             'congested',
-            'the highway at 4,400 vehicles/h into a bottleneck (right lane ends at 3.5 km, then '
-            '600 m at 60 km/h on two lanes): queues and stop-and-go waves upstream',
-            4400.0,
+            'the highway at 2,400 vehicles/h into road works (from 3.5 km one lane at 60 km/h '
+            'for 500 m, about 2,000 vehicles/h): a queue with stop-and-go waves grows upstream',
+            2400.0,
         ),
         Scenario(
             'ramps',
