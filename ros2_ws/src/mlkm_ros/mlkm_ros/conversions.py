@@ -8,7 +8,9 @@ through these functions, so a detection's stamp means the same everywhere.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -74,12 +76,19 @@ def layout_to_msg(layout: Layout, stamp_ns: int) -> SensorLayout:
 
 
 def layout_from_msg(msg: SensorLayout) -> Layout:
-    """Raises ValueError with the reason when the message is not a valid layout."""
+    """Raises ValueError with the reason when the message is not a valid layout: a finite
+    positive road length, at least one sensor, finite strictly increasing positions inside
+    (0, road_length), unique ids and unique non-empty names."""
     n = len(msg.positions)
     if len(msg.sensor_ids) != n or len(msg.sensor_names) != n:
         raise ValueError('sensor_ids, sensor_names and positions differ in length')
+    road_length = float(msg.road_length)
+    if not (math.isfinite(road_length) and road_length > 0):
+        raise ValueError(f'road_length must be finite and > 0, got {road_length!r}')
+    if any(not name for name in msg.sensor_names):
+        raise ValueError('sensor names must not be empty')
     return Layout(
-        road_length=float(msg.road_length),
+        road_length=road_length,
         positions=np.asarray(msg.positions, dtype=float),
         sensor_ids=np.asarray(msg.sensor_ids, dtype=np.int64),
         names=tuple(msg.sensor_names),
@@ -149,7 +158,46 @@ def episode_counts(msg: EpisodeInfo) -> dict[int, int]:
     """The ENDED message's per-sensor detection counts as {sensor id: count}."""
     if len(msg.sensor_ids) != len(msg.detection_counts):
         raise ValueError('sensor_ids and detection_counts differ in length')
+    if len(set(msg.sensor_ids)) != len(msg.sensor_ids):
+        raise ValueError('sensor_ids repeat a sensor')
     return {int(s): int(c) for s, c in zip(msg.sensor_ids, msg.detection_counts)}
+
+
+@dataclass(frozen=True)
+class EpisodeFields:
+    """A validated EpisodeInfo as plain values."""
+
+    episode_id: int
+    num_targets: int
+    start_ns: int
+    end_ns: int
+    counts: dict[int, int] | None  # ENDED: {sensor id: detections published}; STARTED: None
+    published_ns: int  # header.stamp: when the message was published
+
+
+def episode_from_msg(msg: EpisodeInfo) -> EpisodeFields:
+    """Raises ValueError with the reason when the message is not a valid EpisodeInfo: a known
+    status, at least one target, valid times (nanosec below 1 s, never negative) with
+    start <= end, and for ENDED one count per distinct sensor."""
+    if msg.status not in (EpisodeInfo.STATUS_STARTED, EpisodeInfo.STATUS_ENDED):
+        raise ValueError(f'unknown status {msg.status}')
+    if msg.num_targets < 1:
+        raise ValueError(f'num_targets must be >= 1, got {msg.num_targets}')
+    for field, stamp in (('start', msg.start), ('end', msg.end)):
+        if stamp.sec < 0 or stamp.nanosec >= NS_PER_S:
+            raise ValueError(f'{field} is not a valid time: {stamp.sec} s {stamp.nanosec} ns')
+    start_ns, end_ns = time_to_ns(msg.start), time_to_ns(msg.end)
+    if start_ns > end_ns:
+        raise ValueError(f'window ends before it starts: [{start_ns}, {end_ns}] ns')
+    counts = episode_counts(msg) if msg.status == EpisodeInfo.STATUS_ENDED else None
+    return EpisodeFields(
+        episode_id=int(msg.episode_id),
+        num_targets=int(msg.num_targets),
+        start_ns=start_ns,
+        end_ns=end_ns,
+        counts=counts,
+        published_ns=time_to_ns(msg.header.stamp),
+    )
 
 
 # --- tracks -------------------------------------------------------------------------------

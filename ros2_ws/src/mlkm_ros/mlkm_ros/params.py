@@ -45,10 +45,14 @@ class ParamSpec:
     high: float | None = None
     read_only: bool = False
     check: Check | None = None  # returns a reason when the value is refused
+    constraints: str = ''  # free text for ``ros2 param describe``, e.g. the allowed choices
 
     def descriptor(self) -> ParameterDescriptor:
         desc = ParameterDescriptor(
-            name=self.name, description=self.description, read_only=self.read_only
+            name=self.name,
+            description=self.description,
+            read_only=self.read_only,
+            additional_constraints=self.constraints,
         )
         if self.low is not None and self.high is not None:
             if isinstance(self.default, bool):
