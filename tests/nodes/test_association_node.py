@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -71,6 +71,8 @@ class Harness:
         ]
         self.tracks: list[TrackArray] = []
         self.diag: dict[str, str] = {}
+        self.diag_level: int | None = None
+        self.diag_message = ''
         self.test.create_subscription(
             TrackArray, qos.TRACKS_TOPIC, self.tracks.append, qos.TRACKS_QOS
         )
@@ -79,9 +81,13 @@ class Harness:
         )
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
-        values = conv.diagnostics_values(msg, self.node.get_fully_qualified_name())
+        name = self.node.get_fully_qualified_name()
+        values = conv.diagnostics_values(msg, name)
         if values is not None:
             self.diag = values
+            status = next(st for st in msg.status if st.name == name)
+            self.diag_level = status.level[0]
+            self.diag_message = status.message
 
     def wait(self, predicate, timeout: float = 10.0) -> None:
         assert self.spin_until(self.executor, predicate, timeout), 'timed out'
@@ -176,7 +182,8 @@ def test_known_association_with_every_bad_input(harness) -> None:
     extra_ns = conv.seconds_to_ns(115.0)
     h.detect(3, extra_ns, 25.0)  # a 4th detection at a sensor that saw 3 targets
     h.detect(2, conv.seconds_to_ns(5.0), 20.0)  # before the episode's window
-    # ENDED counts every message each sensor published.
+    # ENDED counts every message each sensor published, refused ones included; only accepted
+    # detections count towards completion, so this episode completes by completion_timeout.
     counts = {10: 3 + 5, 11: 3 + 1, 12: 3, 13: 3 + 1}
     h.episode_pub.publish(conv.episode_ended_msg(0, 3, start, end, 0, counts))
     h.wait(lambda: 0 in h.finals())
@@ -320,3 +327,237 @@ def test_new_layout_moves_the_subscriptions(harness) -> None:
     h.layout_pub.publish(bad)
     h.wait(lambda: h.node.assembler.rejected['invalid_layout'] == 1)
     assert h.node.assembler.layout.n_sensors == 2
+
+
+def start_episode(h: Harness, episode_id: int = 0, offset: float = 0.0, stamp_ns: int = 0):
+    """Layout (if not known yet) and STARTED; returns the window."""
+    if h.node.assembler.layout is None:
+        h.layout_pub.publish(conv.layout_to_msg(LAYOUT, stamp_ns))
+        h.wait(lambda: h.node.assembler.layout is not None)
+        h.wait_matched()
+    start, end = window(offset)
+    h.episode_pub.publish(conv.episode_started_msg(episode_id, 3, start, end, stamp_ns))
+    h.wait(lambda: h.node.assembler.knows_episode(episode_id, start))
+    return start, end
+
+
+def assert_perfect(msg: TrackArray, offset: float = 0.0) -> None:
+    """Every true passage is in the final tracks, one track per target."""
+    got = keyed(msg)
+    truth = passages(offset)
+    assert set(got) >= {(IDS[s], ns) for s, ns, _, _ in truth}
+    groups: dict[int, set[int]] = {}
+    for s, ns, _, target in truth:
+        groups.setdefault(target, set()).add(got[(IDS[s], ns)])
+    assert all(len(g) == 1 and -1 not in g for g in groups.values()), groups
+    assert len({next(iter(g)) for g in groups.values()}) == 3
+
+
+def test_absurd_finite_values_are_rejected(harness) -> None:
+    h = harness(method='mlkm', segment_size=2)
+    start, end = start_episode(h)
+    for s, ns, v, _ in sorted(passages(), key=lambda p: p[1]):
+        h.detect(s, ns, v)
+    h.detect(1, conv.seconds_to_ns(20.0), 1e308)  # finite, far beyond any road speed
+    h.detect(2, conv.seconds_to_ns(21.0), 5e-324)  # positive, far below any road speed
+    h.detect(3, conv.seconds_to_ns(22.0), 200.0)  # above the max_speed parameter
+    h.episode_pub.publish(conv.episode_ended_msg(0, 3, start, end, 0, {i: 3 for i in IDS}))
+    h.wait(lambda: 0 in h.finals())
+    h.wait(lambda: h.diag.get('episodes_final') == '1')
+    assert h.diag['rejected.speed_out_of_range'] == '3'
+    assert h.diag['accepted'] == '12'
+    assert_perfect(h.finals()[0])
+    # The bound is a parameter: widened, 200 m/s is a speed like any other.
+    assert h.node.set_parameters([Parameter('max_speed', value=250.0)])[0].successful
+    assert h.node.assembler.bounds.refuse(10.0, 200.0) is None
+    # Bounds that contradict each other are refused as a whole.
+    assert not h.node.set_parameters([Parameter('min_speed', value=300.0)])[0].successful
+
+
+def test_solver_error_shows_as_diagnostics_error(harness) -> None:
+    from mlkm_assoc.encoding import encode
+    from mlkm_assoc.solver import Result
+
+    h = harness()
+    error = 'mlkm failed on episode 7, segment 0: ValueError: boom'
+    empty = np.zeros(0, dtype=np.int64)
+    result = Result(
+        episode_id=7,
+        method='mlkm',
+        final=False,
+        segments_done=1,
+        segments_total=2,
+        layout=LAYOUT,
+        sensor_index=empty,
+        stamps_ns=empty,
+        velocities=np.zeros(0),
+        labels=empty,
+        solve_time=0.0,
+        completed_at=0.0,
+        forced=False,
+        error=error,
+    )
+    h.node._publish(encode(result))
+    h.wait(lambda: h.diag.get('solver_errors') == '1')
+    assert h.diag_level == DiagnosticStatus.ERROR[0]
+    assert error in h.diag_message
+
+
+def test_rejected_message_does_not_count_towards_completion(harness) -> None:
+    h = harness(completion_timeout=60.0)
+    start, end = start_episode(h)
+    ordered = sorted(passages(), key=lambda p: p[1])
+    last = ordered[-1]
+    for s, ns, v, _ in ordered[:-1]:
+        h.detect(s, ns, v)
+    # The simulator published 3 detections per sensor; the last one is still in flight when a
+    # malformed message arrives on the same sensor's topic.
+    h.episode_pub.publish(conv.episode_ended_msg(0, 3, start, end, 0, {i: 3 for i in IDS}))
+    h.wait(lambda: h.node.assembler.episode_ended(0))
+    h.detect(last[0], last[1] - 1, math.nan)
+    h.wait(lambda: h.node.assembler.received == 12)
+    h.detect(last[0], last[1], last[2])
+    h.wait(lambda: 0 in h.finals())
+    assert_perfect(h.finals()[0])
+    h.wait(lambda: h.diag.get('episodes_final') == '1')
+    assert h.diag['rejected.nan_velocity'] == '1'
+    assert h.diag['rejected.after_episode_final'] == '0'
+
+
+def test_invalid_layout_and_episode_refused_episode_kept(harness) -> None:
+    h = harness(segment_size=2)
+    start, end = start_episode(h)
+    ordered = sorted(passages(), key=lambda p: p[1])
+    for s, ns, v, _ in ordered[:5]:
+        h.detect(s, ns, v)
+    bad = conv.layout_to_msg(LAYOUT, 0)
+    bad.road_length = math.inf
+    h.layout_pub.publish(bad)
+    h.wait(lambda: h.node.assembler.rejected['invalid_layout'] == 1)
+    # Refused EpisodeInfos: no targets; a window that ends before it starts.
+    h.episode_pub.publish(conv.episode_started_msg(1, 0, end + 10, end + 20, 0))
+    h.episode_pub.publish(conv.episode_started_msg(2, 3, end + 30, end + 20, 0))
+    h.wait(lambda: h.node.assembler.rejected['invalid_episode'] == 2)
+    for s, ns, v, _ in ordered[5:]:
+        h.detect(s, ns, v)
+    h.episode_pub.publish(conv.episode_ended_msg(0, 3, start, end, 0, {i: 3 for i in IDS}))
+    h.wait(lambda: 0 in h.finals())
+    assert_perfect(h.finals()[0])
+    assert h.node.assembler.layout.road_length == LAYOUT.road_length
+    h.wait(lambda: h.diag.get('rejected.invalid_episode') == '2')
+    assert h.diag['rejected.invalid_layout'] == '1'
+
+
+def run_episode(h: Harness, episode_id: int, offset: float, stamp_ns: int) -> None:
+    start, end = window(offset)
+    h.episode_pub.publish(conv.episode_started_msg(episode_id, 3, start, end, stamp_ns))
+    h.wait(lambda: h.node.assembler.knows_episode(episode_id, start))
+    for s, ns, v, _ in sorted(passages(offset), key=lambda p: p[1]):
+        h.detect(s, ns, v)
+    counts = {i: 3 for i in IDS}
+    h.episode_pub.publish(conv.episode_ended_msg(episode_id, 3, start, end, stamp_ns, counts))
+
+
+@pytest.mark.parametrize('same_seed', [True, False])
+def test_simulator_restart_starts_a_new_run(harness, same_seed: bool) -> None:
+    h = harness()
+    start_episode(h, stamp_ns=1_000)
+    run_episode(h, 0, 0.0, 1_000)
+    h.wait(lambda: len([m for m in h.tracks if m.final]) == 1)
+    # The simulator restarts: episode ids begin again at 0. With the same seed, the window and
+    # the detections are the same and only the publication stamps are newer; with another
+    # seed the window differs.
+    h.layout_pub.publish(conv.layout_to_msg(LAYOUT, 5_000))
+    offset = 0.0 if same_seed else 3000.0
+    run_episode(h, 0, offset, 6_000)
+    h.wait(lambda: len([m for m in h.tracks if m.final]) == 2)
+    second = [m for m in h.tracks if m.final][1]
+    assert second.episode_id == 0
+    assert_perfect(second, offset)
+    assert h.node.assembler.runs == 2
+    assert h.node.assembler.rejected['after_episode_final'] == 0
+
+
+def test_episode_of_a_dead_simulator_times_out(harness) -> None:
+    h = harness(episode_timeout=1.0)
+    start_episode(h)
+    ordered = sorted(passages(), key=lambda p: p[1])
+    for s, ns, v, _ in ordered[:5]:
+        h.detect(s, ns, v)
+    # No ENDED, no further detection: the simulator died.
+    h.wait(lambda: 0 in h.finals())
+    assert len(keyed(h.finals()[0])) == 5
+    h.wait(lambda: h.diag.get('handled.episode_timeout') == '1')
+    assert h.diag['open_episodes'] == '0'
+    assert h.diag['buffered_open_episodes'] == '0'
+
+
+def test_restarted_node_reports_missing_not_an_empty_final(harness) -> None:
+    h = harness()
+    # Latched EpisodeInfos of an episode whose detections this node never saw (it was down).
+    start, end = start_episode(h)
+    h.episode_pub.publish(conv.episode_ended_msg(0, 3, start, end, 0, {i: 3 for i in IDS}))
+    # The next episode arrives while the node is up, except one detection lost at sensor a.
+    start_episode(h, 1, 1000.0)
+    lost = min(passages(1000.0), key=lambda p: p[1])
+    for s, ns, v, _ in sorted(passages(1000.0), key=lambda p: p[1]):
+        if ns != lost[1]:
+            h.detect(s, ns, v)
+    s1, e1 = window(1000.0)
+    h.episode_pub.publish(conv.episode_ended_msg(1, 3, s1, e1, 0, {i: 3 for i in IDS}))
+    h.wait(lambda: 1 in h.finals())
+    h.wait(lambda: h.diag.get('episodes_unseen') == '1')
+    assert h.diag['missing_detections'] == str(12 + 1)
+    assert 0 not in h.finals()
+    assert len(keyed(h.finals()[1])) == 11
+    assert h.node.assembler.rejected['after_episode_final'] == 0
+
+
+def test_diagnostics_judge_recent_rejections(harness) -> None:
+    h = harness(diagnostics_window=1.0)
+    start_episode(h)
+    h.detect(0, conv.seconds_to_ns(15.0), math.nan)
+    h.wait(lambda: h.diag.get('rejected') == '1' and h.diag_level == DiagnosticStatus.WARN[0])
+    # One old rejection does not keep the node in WARN for ever.
+    h.wait(lambda: h.diag_level == DiagnosticStatus.OK[0])
+    assert h.diag['rejected'] == '1'
+
+
+def test_statistics_are_bounded(harness) -> None:
+    from mlkm_assoc.encoding import encode
+    from mlkm_assoc.solver import Result
+
+    h = harness()
+    empty = np.zeros(0, dtype=np.int64)
+    update = encode(
+        Result(
+            episode_id=0,
+            method='mlkm',
+            final=False,
+            segments_done=1,
+            segments_total=2,
+            layout=LAYOUT,
+            sensor_index=empty,
+            stamps_ns=empty,
+            velocities=np.zeros(0),
+            labels=empty,
+            solve_time=0.001,
+            completed_at=0.0,
+            forced=False,
+        )
+    )
+    for _ in range(3000):
+        h.node._publish(update)
+    values = h.node.diagnostics()
+    assert values['track_updates_published'] == 3000
+    assert 0 < values['latency_count'] <= 1000
+
+
+def test_method_choices_are_described(rclpy_context) -> None:
+    node = AssociationNode(context=rclpy_context)
+    try:
+        desc = node.describe_parameter('method')
+        for method in available_methods():
+            assert method in desc.additional_constraints
+    finally:
+        node.destroy_node()

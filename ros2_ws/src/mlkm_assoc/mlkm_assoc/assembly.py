@@ -7,47 +7,55 @@ strictly in segment order per episode, for the solver (:mod:`mlkm_assoc.solver`)
 
 Policies (README "Association node"):
 
+* Validation: a detection's velocity and stamp must lie inside the physical
+  :class:`~mlkm_core.bounds.Bounds` (node parameters), its sensor id must be in the layout
+  and its position match that sensor's. Refused detections never count towards completion.
 * Episode assignment: a detection belongs to the episode whose [start, end] window (from
   EpisodeInfo) holds its stamp. Detections whose episode is not known yet are held (topics
   are not ordered against each other) and placed when the EpisodeInfo arrives; held longer
   than ``completion_timeout`` or older than a later known episode: rejected
   ``outside_episode``.
-* Completion: a sensor is done for an episode when it has ``num_targets`` valid detections
-  (the paper's setting, before the episode has ended) or, once ENDED has arrived, when as many
-  messages arrived from it as ENDED counts. A segment is complete when all its sensors are
-  done; segments go to the solver in order (segment e+1 waits for e). The final association
-  is published when every segment went out and ENDED's counts are met, or
-  ``completion_timeout`` seconds after the last activity once the episode ended (what is
-  there is then associated; counted as ``completion_timeout``).
+* Completion: a sensor is done for an episode when it has ``num_targets`` accepted detections
+  (the paper's setting, before the episode has ended) or, once ENDED has arrived, as many
+  accepted detections as ENDED counts. A segment is complete when all its sensors are done;
+  segments go to the solver in order (segment e+1 waits for e). The final association is
+  published when every segment went out and ENDED's counts are met, or ``completion_timeout``
+  seconds after the last input once the episode ended (counted ``completion_timeout``), or
+  ``episode_timeout`` seconds after the last input of an episode that never ended (its
+  simulator died; counted ``episode_timeout``). Detections ENDED announced that never arrived
+  are counted as ``missing``. An episode of which this node saw no detection at all (it was
+  down) gets no final; it is counted in ``episodes_unseen`` and its detections as missing.
 * A detection that arrives for a segment already solved (clutter: a sensor with more
   detections than targets; or a stamp out of order) is kept; the episode's final association
   is then recomputed from scratch over every detection, so the final tracks hold it.
-* Rejected with a reason: NaN / infinite / zero / negative velocity, unknown sensor id,
-  position not matching the layout, duplicate (same sensor and stamp), stamp outside every
-  episode window, a detection for an episode already finalised, buffer overflow.
-* Handled (kept) and counted: detection before the layout is known (held, checked when the
-  layout arrives), stamp out of order on its sensor, more detections than targets at one
-  sensor (the associator decides; extras may end up unassigned), late for its segment.
+* Runs: a restarted simulator numbers its episodes from 0 again. A new run is recognised by
+  a layout published later than the current run began (same content or not), an EpisodeInfo
+  for a known id with another window or number of targets, a STARTED for a known id
+  published at another time, or an EpisodeInfo for an already forgotten id published later
+  than any of this run. The open episodes of the old run are then finalised with what they
+  have, and its bookkeeping is forgotten.
+* Memory: buffers of an episode are freed when it is finalised; at most
+  ``max_finished_episodes`` finished episodes are remembered (to reject their late
+  detections as ``after_episode_final``); older ones are forgotten.
 """
 
 from __future__ import annotations
 
-import math
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
-from mlkm_core.associators.base import AssociatorConfig
-from mlkm_core.types import Layout, segments
+from mlkm_assoc.episodes import AssociationConfig, Episode, Job, Part
+from mlkm_core.bounds import REASONS as BOUNDS_REASONS
+from mlkm_core.bounds import Bounds
+from mlkm_core.types import Layout
+
+__all__ = ['REJECT_REASONS', 'Assembler', 'AssociationConfig', 'Job', 'Part']
 
 #: Reasons a detection is rejected (not associated).
 REJECT_REASONS = (
-    'nan_velocity',
-    'inf_velocity',
-    'zero_velocity',
-    'negative_velocity',
+    *BOUNDS_REASONS,
     'unknown_sensor',
     'position_mismatch',
     'duplicate',
@@ -55,118 +63,12 @@ REJECT_REASONS = (
     'after_episode_final',
     'buffer_full',
 )
-#: Irregular inputs that are kept and associated, counted by reason.
-HANDLED_REASONS = (
-    'before_layout',
-    'out_of_order',
-    'excess_at_sensor',
-    'late_for_segment',
-    'completion_timeout',
-)
 #: Tolerance between a detection's position and its sensor's layout position [m].
 POSITION_TOLERANCE = 1e-3
-
-
-@dataclass(frozen=True)
-class AssociationConfig:
-    """The association node's settings (from its parameters)."""
-
-    method: str = 'mlkm'
-    segment_size: int = 5
-    seed: int = 0
-    completion_timeout: float = 5.0  # [s]
-    max_buffered: int = 5_000_000  # held detections (before layout / episode) [-]
-
-    def associator_config(self) -> AssociatorConfig:
-        return AssociatorConfig(segment_size=self.segment_size, seed=self.seed)
-
-
-@dataclass(frozen=True)
-class Part:
-    """Detections of one segment, sorted by (sensor index, stamp)."""
-
-    sensor_index: np.ndarray  # int64
-    stamps_ns: np.ndarray  # int64
-    velocities: np.ndarray  # float64
-
-
-@dataclass(frozen=True)
-class Job:
-    """Work for the solver. kind: 'segment' (feed ``parts[0]``), 'final' (publish the
-    association so far as final) or 'rerun' (associate ``parts`` from scratch, final)."""
-
-    kind: str
-    episode_id: int
-    layout: Layout
-    n_targets: int
-    method: str
-    associator_config: AssociatorConfig
-    segment: int  # index of the segment fed ('segment'), else the number of segments
-    segments_total: int
-    parts: tuple[Part, ...]
-    completed_at: float  # monotonic time the segment became complete
-    forced: bool = False  # completed by the timeout rather than by the counts
-
-
-class _Episode:
-    """Buffers and progress of one episode."""
-
-    def __init__(
-        self,
-        episode_id: int,
-        num_targets: int,
-        start_ns: int,
-        end_ns: int,
-        layout: Layout,
-        config: AssociationConfig,
-    ) -> None:
-        n = layout.n_sensors
-        self.id = episode_id
-        self.num_targets = num_targets
-        self.start_ns = start_ns
-        self.end_ns = end_ns
-        self.layout = layout
-        self.method = config.method
-        self.associator_config = config.associator_config()
-        self.segments = [seg.tolist() for seg in segments(n, config.segment_size)]
-        self.seg_of = [0] * n
-        for e, seg in enumerate(self.segments):
-            for s in seg:
-                self.seg_of[s] = e
-        self.stamps: list[list[int]] = [[] for _ in range(n)]
-        self.vels: list[list[float]] = [[] for _ in range(n)]
-        self.seen: list[set[int]] = [set() for _ in range(n)]
-        self.received = [0] * n  # messages attributed to each sensor (valid or not)
-        self.ended: list[int] | None = None  # ENDED counts per sensor index
-        self.next_segment = 0
-        self.dirty = False
-        self.finalized = False
-        self.last_activity = 0.0
-
-    def sensor_done(self, s: int) -> bool:
-        if self.ended is not None:
-            return self.received[s] >= self.ended[s]
-        return len(self.stamps[s]) >= self.num_targets
-
-    def buffered(self) -> int:
-        return sum(len(x) for x in self.stamps)
-
-    def part(self, sensors: list[int]) -> Part:
-        idx, ns, vel = [], [], []
-        for s in sensors:
-            st, vl = self.stamps[s], self.vels[s]
-            order = sorted(range(len(st)), key=st.__getitem__)
-            idx.extend([s] * len(st))
-            ns.extend(st[i] for i in order)
-            vel.extend(vl[i] for i in order)
-        return Part(
-            np.asarray(idx, dtype=np.int64),
-            np.asarray(ns, dtype=np.int64),
-            np.asarray(vel, dtype=float),
-        )
-
+NS_PER_S = 1_000_000_000
 
 Raw = tuple[int, int, float, float, float]  # sensor id, stamp [ns], position, velocity, t_rx
+Info = tuple[int, int, int]  # num_targets, start [ns], end [ns]
 
 
 class Assembler:
@@ -178,18 +80,14 @@ class Assembler:
         submit: Callable[[Job], None],
         on_reject: Callable[[str, str], None] | None = None,
     ) -> None:
-        self.config = config
+        self._config = config
+        self.bounds: Bounds = config.bounds()
         self._submit = submit
         self._on_reject = on_reject
         self.layout: Layout | None = None
+        self._layout_stamp = -1
         self._index: dict[int, int] = {}
         self._positions: list[float] = []
-        self._last_stamp: list[int] = []
-        self._infos: dict[int, tuple[int, int, int]] = {}  # id -> (num_targets, start, end)
-        self._ended: dict[int, dict[int, int]] = {}  # id -> {sensor id: count}
-        self._episodes: dict[int, _Episode] = {}
-        self._current: _Episode | None = None
-        self._latest_start: int | None = None
         self._pending_layout: list[Raw] = []
         self._pending_episode: list[Raw] = []
         self.rejected: Counter[str] = Counter()
@@ -198,21 +96,51 @@ class Assembler:
         self.accepted = 0
         self.segments_done = 0
         self.episodes_final = 0
+        self.episodes_unseen = 0  # episodes this node saw no detection of (no final)
+        self.missing = 0  # detections ENDED announced that never arrived
+        self.runs = 1
         self.first_rx: float | None = None
         self.last_rx: float | None = None
+        self._run_stamp = -1  # publication stamp of the message that began this run [ns]
+        self._forget_run()
+
+    def _forget_run(self) -> None:
+        self._infos: dict[int, Info] = {}
+        self._started: dict[int, int] = {}  # id -> publication stamp of its STARTED [ns]
+        self._ended: dict[int, dict[int, int]] = {}  # id -> {sensor id: count}
+        self._episodes: dict[int, Episode] = {}
+        self._finished: list[int] = []  # finalised episode ids, oldest first
+        self._forgotten = -1  # episode ids up to this one were forgotten
+        self._info_stamp = -1  # latest publication stamp of an EpisodeInfo of this run
+        self._current: Episode | None = None
+        self._latest_start: int | None = None
+        self._last_stamp = [-(2**63)] * (0 if self.layout is None else self.layout.n_sensors)
+
+    @property
+    def config(self) -> AssociationConfig:
+        return self._config
+
+    @config.setter
+    def config(self, config: AssociationConfig) -> None:
+        """New settings (from the next episode on; the bounds at once)."""
+        self.bounds = config.bounds()
+        self._config = config
 
     # --- inputs ---------------------------------------------------------------------------
-    def set_layout(self, layout: Layout, now: float) -> bool:
-        """Use ``layout`` from now on; returns False when it equals the current one."""
+    def set_layout(self, layout: Layout, now: float, published_ns: int = 0) -> bool:
+        """Use ``layout`` from now on; returns False when it is the current one.
+
+        ``published_ns``: the message's publication stamp; a layout published after the
+        current run began starts a new run even when its content is the same (the simulator
+        restarted).
+        """
         old = self.layout
         if old is not None and _same_layout(old, layout):
-            return False
+            if published_ns == self._layout_stamp or published_ns <= self._run_stamp:
+                return False
+        self._layout_stamp = published_ns
         if old is not None:
-            for ep in list(self._episodes.values()):
-                if not ep.finalized:
-                    self._force(ep, now)
-            self._episodes = {k: v for k, v in self._episodes.items() if v.finalized}
-            self._current = None
+            self._new_run(now, published_ns)
         self.layout = layout
         self._index = {int(s): i for i, s in enumerate(layout.sensor_ids)}
         self._positions = [float(p) for p in layout.positions]
@@ -232,13 +160,25 @@ class Assembler:
         end_ns: int,
         ended_counts: dict[int, int] | None,
         now: float,
+        published_ns: int = 0,
     ) -> None:
-        """An EpisodeInfo: STARTED (``ended_counts`` None) or ENDED (with the counts)."""
+        """An EpisodeInfo: STARTED (``ended_counts`` None) or ENDED (with the counts), already
+        validated; ``published_ns`` is its header stamp (when it was published)."""
+        info = (num_targets, start_ns, end_ns)
+        started = ended_counts is None
+        if self._is_new_run(episode_id, info, started, published_ns):
+            self._new_run(now, published_ns)
+        elif episode_id <= self._forgotten:
+            self.handled['stale_episode_info'] += 1
+            return
+        self._info_stamp = max(self._info_stamp, published_ns)
         if episode_id not in self._infos:
-            self._infos[episode_id] = (num_targets, start_ns, end_ns)
+            self._infos[episode_id] = info
             if self._latest_start is None or start_ns > self._latest_start:
                 self._latest_start = start_ns
-        if ended_counts is not None:
+        if started:
+            self._started.setdefault(episode_id, published_ns)
+        else:
             self._ended[episode_id] = ended_counts
         if self.layout is None:
             return
@@ -246,11 +186,7 @@ class Assembler:
         if ep is None or ep.finalized:
             return
         if ended_counts is not None and ep.ended is None:
-            ep.ended = [0] * self.layout.n_sensors
-            for sensor_id, count in ended_counts.items():
-                s = self._index.get(sensor_id)
-                if s is not None:
-                    ep.ended[s] = count
+            ep.set_ended(ended_counts, self._index)
             ep.last_activity = now
             self._advance(ep, now)
         held, self._pending_episode = self._pending_episode, []
@@ -266,22 +202,25 @@ class Assembler:
             self.first_rx = now
         self.last_rx = now
         if self.layout is None:
-            if self._held() >= self.config.max_buffered:
-                self._reject('buffer_full', sensor_id, stamp_ns)
-                return
-            self.handled['before_layout'] += 1
-            self._pending_layout.append((sensor_id, stamp_ns, position, velocity, now))
+            reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity)
+            if reason is not None:
+                self._reject(reason, sensor_id, stamp_ns, velocity)
+            elif self._held() >= self._config.max_buffered:
+                self._reject('buffer_full', sensor_id, stamp_ns, velocity)
+            else:
+                self.handled['before_layout'] += 1
+                self._pending_layout.append((sensor_id, stamp_ns, position, velocity, now))
             return
         self._place(sensor_id, stamp_ns, position, velocity, now)
 
     def tick(self, now: float) -> None:
         """Timeouts: held detections without an episode, episodes that stopped short."""
-        timeout = self.config.completion_timeout
+        timeout = self._config.completion_timeout
         if self._pending_episode:
             keep = []
             for raw in self._pending_episode:
                 if now - raw[4] > timeout:
-                    self._reject('outside_episode', raw[0], raw[1])
+                    self._reject('outside_episode', raw[0], raw[1], raw[3])
                 else:
                     keep.append(raw)
             self._pending_episode = keep
@@ -289,16 +228,28 @@ class Assembler:
             (ep for ep in self._episodes.values() if not ep.finalized), key=lambda e: e.id
         )
         for i, ep in enumerate(open_eps):
-            later_active = any(o.last_activity > 0 for o in open_eps[i + 1 :])
-            if (
-                (ep.ended is not None or later_active)
-                and ep.last_activity > 0
-                and now - ep.last_activity > timeout
-            ):
+            idle = now - ep.last_activity
+            later_active = any(o.accepted > 0 for o in open_eps[i + 1 :])
+            if (ep.ended is not None or later_active) and idle > timeout:
                 self.handled['completion_timeout'] += 1
                 self._force(ep, now)
+            elif idle > self._config.episode_timeout:
+                self.handled['episode_timeout'] += 1
+                self._force(ep, now)
 
-    # --- state for diagnostics ------------------------------------------------------------
+    # --- state ----------------------------------------------------------------------------
+    def knows_episode(self, episode_id: int, start_ns: int | None = None) -> bool:
+        """Whether this run has the EpisodeInfo of ``episode_id`` (with that start)."""
+        info = self._infos.get(episode_id)
+        return info is not None and (start_ns is None or info[1] == start_ns)
+
+    def episode_ended(self, episode_id: int) -> bool:
+        """Whether the ENDED message of ``episode_id`` arrived in this run."""
+        return episode_id in self._ended
+
+    def remembered_episodes(self) -> int:
+        return len(self._episodes)
+
     def buffer_sizes(self) -> dict[str, int]:
         return {
             'buffered_open_episodes': sum(
@@ -313,27 +264,62 @@ class Assembler:
     def _held(self) -> int:
         return len(self._pending_layout) + len(self._pending_episode)
 
-    def _reject(self, reason: str, sensor_id: int, stamp_ns: int) -> None:
+    def _reject(self, reason: str, sensor_id: int, stamp_ns: int, velocity: float) -> None:
         self.rejected[reason] += 1
         if self._on_reject is not None:
-            self._on_reject(reason, f'sensor {sensor_id}, stamp {stamp_ns} ns')
+            detail = self.bounds.describe(reason) if reason in BOUNDS_REASONS else reason
+            self._on_reject(
+                reason,
+                f'sensor {sensor_id}, stamp {stamp_ns} ns, velocity {velocity!r} m/s: {detail}',
+            )
 
-    def _ensure_episode(self, episode_id: int, now: float) -> _Episode | None:
+    def _is_new_run(self, episode_id: int, info: Info, started: bool, published_ns: int) -> bool:
+        known = self._infos.get(episode_id)
+        if known is not None:
+            if known != info:
+                return published_ns >= self._run_stamp
+            first = self._started.get(episode_id)
+            return (
+                started
+                and first is not None
+                and published_ns != first
+                and published_ns > self._run_stamp
+            )
+        return episode_id <= self._forgotten and published_ns > self._info_stamp
+
+    def _new_run(self, now: float, run_stamp: int) -> None:
+        """The source restarted: close the old run's episodes, forget its bookkeeping.
+        EpisodeInfos published after ``run_stamp`` already belong to the new run: kept."""
+        keep = {
+            k: v
+            for k, v in self._infos.items()
+            if self._started.get(k, -1) >= run_stamp and run_stamp > self._run_stamp
+        }
+        for ep in sorted(self._episodes.values(), key=lambda e: e.id):
+            if not ep.finalized and (ep.id not in keep or ep.accepted > 0):
+                keep.pop(ep.id, None)
+                self._force(ep, now)
+        started = {k: self._started[k] for k in keep if k in self._started}
+        ended = {k: self._ended[k] for k in keep if k in self._ended}
+        self._forget_run()
+        self._infos, self._started, self._ended = keep, started, ended
+        if keep:
+            self._latest_start = max(start for _, start, _ in keep.values())
+        self._run_stamp = max(self._run_stamp, run_stamp)
+        self.runs += 1
+
+    def _ensure_episode(self, episode_id: int, now: float) -> Episode | None:
         ep = self._episodes.get(episode_id)
         if ep is None and episode_id in self._infos and self.layout is not None:
             num_targets, start, end = self._infos[episode_id]
-            ep = _Episode(episode_id, num_targets, start, end, self.layout, self.config)
+            ep = Episode(episode_id, num_targets, start, end, self.layout, self._config, now)
             self._episodes[episode_id] = ep
             counts = self._ended.get(episode_id)
             if counts is not None:
-                ep.ended = [0] * self.layout.n_sensors
-                for sensor_id, count in counts.items():
-                    s = self._index.get(sensor_id)
-                    if s is not None:
-                        ep.ended[s] = count
+                ep.set_ended(counts, self._index)
         return ep
 
-    def _find_episode(self, stamp_ns: int) -> _Episode | None:
+    def _find_episode(self, stamp_ns: int) -> Episode | None:
         cur = self._current
         if cur is not None and cur.start_ns <= stamp_ns <= cur.end_ns:
             return cur
@@ -348,64 +334,56 @@ class Assembler:
     ) -> None:
         s = self._index.get(sensor_id)
         if s is None:
-            self._reject('unknown_sensor', sensor_id, stamp_ns)
+            self._reject('unknown_sensor', sensor_id, stamp_ns, velocity)
             return
+        reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity)
+        if reason is None and not abs(position - self._positions[s]) <= POSITION_TOLERANCE:
+            reason = 'position_mismatch'
         ep = self._find_episode(stamp_ns)
+        if reason is not None:
+            if ep is not None and not ep.finalized:
+                ep.rejected[s] += 1  # announced by ENDED, so not missing
+                ep.last_activity = now
+            self._reject(reason, sensor_id, stamp_ns, velocity)
+            return
         if ep is None:
             if self._latest_start is not None and stamp_ns < self._latest_start:
-                self._reject('outside_episode', sensor_id, stamp_ns)
-            elif self._held() >= self.config.max_buffered:
-                self._reject('buffer_full', sensor_id, stamp_ns)
+                self._reject('outside_episode', sensor_id, stamp_ns, velocity)
+            elif self._held() >= self._config.max_buffered:
+                self._reject('buffer_full', sensor_id, stamp_ns, velocity)
             else:
                 self._pending_episode.append((sensor_id, stamp_ns, position, velocity, now))
             return
         if ep.finalized:
-            self._reject('after_episode_final', sensor_id, stamp_ns)
+            self._reject('after_episode_final', sensor_id, stamp_ns, velocity)
             return
-        ep.received[s] += 1
         ep.last_activity = now
-        reason = None
-        if not (0.0 < velocity < math.inf):
-            if velocity != velocity:
-                reason = 'nan_velocity'
-            elif velocity in (math.inf, -math.inf):
-                reason = 'inf_velocity'
-            else:
-                reason = 'zero_velocity' if velocity == 0 else 'negative_velocity'
-        elif not abs(position - self._positions[s]) <= POSITION_TOLERANCE:
-            reason = 'position_mismatch'
-        elif stamp_ns in ep.seen[s]:
-            reason = 'duplicate'
-        if reason is not None:
-            self._reject(reason, sensor_id, stamp_ns)
+        if stamp_ns in ep.seen[s]:
+            ep.rejected[s] += 1
+            self._reject('duplicate', sensor_id, stamp_ns, velocity)
+            return
+        if stamp_ns < self._last_stamp[s]:
+            self.handled['out_of_order'] += 1
         else:
-            if stamp_ns < self._last_stamp[s]:
-                self.handled['out_of_order'] += 1
-            else:
-                self._last_stamp[s] = stamp_ns
-            stamps = ep.stamps[s]
-            if len(stamps) >= ep.num_targets:
-                self.handled['excess_at_sensor'] += 1
-            ep.seen[s].add(stamp_ns)
-            stamps.append(stamp_ns)
-            ep.vels[s].append(velocity)
-            self.accepted += 1
-            if ep.seg_of[s] < ep.next_segment:
-                self.handled['late_for_segment'] += 1
-                ep.dirty = True
+            self._last_stamp[s] = stamp_ns
+        stamps = ep.stamps[s]
+        if len(stamps) >= ep.num_targets:
+            self.handled['excess_at_sensor'] += 1
+        ep.seen[s].add(stamp_ns)
+        stamps.append(stamp_ns)
+        ep.vels[s].append(velocity)
+        ep.accepted += 1
+        self.accepted += 1
+        if ep.seg_of[s] < ep.next_segment:
+            self.handled['late_for_segment'] += 1
+            ep.dirty = True
         if ep.seg_of[s] == ep.next_segment and ep.sensor_done(s):
             self._advance(ep, now)
         elif ep.next_segment == len(ep.segments) and ep.ended is not None:
             self._advance(ep, now)
 
     def _job(
-        self,
-        ep: _Episode,
-        kind: str,
-        segment: int,
-        parts: tuple[Part, ...],
-        now: float,
-        forced: bool,
+        self, ep: Episode, kind: str, parts: tuple[Part, ...], now: float, forced: bool
     ) -> Job:
         return Job(
             kind=kind,
@@ -414,19 +392,19 @@ class Assembler:
             n_targets=ep.num_targets,
             method=ep.method,
             associator_config=ep.associator_config,
-            segment=segment,
             segments_total=len(ep.segments),
             parts=parts,
             completed_at=now,
             forced=forced,
+            missing=ep.missing() if kind != 'segment' else 0,
         )
 
-    def _advance(self, ep: _Episode, now: float, forced: bool = False) -> None:
+    def _advance(self, ep: Episode, now: float, forced: bool = False) -> None:
         while ep.next_segment < len(ep.segments):
             seg = ep.segments[ep.next_segment]
             if not forced and not all(ep.sensor_done(s) for s in seg):
                 return
-            self._submit(self._job(ep, 'segment', ep.next_segment, (ep.part(seg),), now, forced))
+            self._submit(self._job(ep, 'segment', (ep.part(seg),), now, forced))
             ep.next_segment += 1
             self.segments_done += 1
         if not forced:
@@ -434,17 +412,35 @@ class Assembler:
                 return
         if ep.dirty:
             parts = tuple(ep.part(seg) for seg in ep.segments)
-            self._submit(self._job(ep, 'rerun', len(ep.segments), parts, now, forced))
+            self._submit(self._job(ep, 'rerun', parts, now, forced))
         else:
-            self._submit(self._job(ep, 'final', len(ep.segments), (), now, forced))
-        ep.finalized = True
+            self._submit(self._job(ep, 'final', (), now, forced))
+        self.missing += ep.missing()
         self.episodes_final += 1
-        # Free the buffers; keep the window so that late detections are recognised.
-        ep.stamps = ep.vels = []
-        ep.seen = []
+        self._finish(ep)
 
-    def _force(self, ep: _Episode, now: float) -> None:
+    def _force(self, ep: Episode, now: float) -> None:
+        """Finalise ``ep`` with what it has; without a single detection: no final at all."""
+        if ep.accepted == 0:
+            self.episodes_unseen += 1
+            self.missing += ep.missing()
+            self._finish(ep)
+            return
         self._advance(ep, now, forced=True)
+
+    def _finish(self, ep: Episode) -> None:
+        ep.finalized = True
+        ep.free()
+        self._finished.append(ep.id)
+        while len(self._finished) > self._config.max_finished_episodes:
+            old = self._finished.pop(0)
+            if self._episodes.get(old) is self._current:
+                self._current = None
+            self._episodes.pop(old, None)
+            self._infos.pop(old, None)
+            self._started.pop(old, None)
+            self._ended.pop(old, None)
+            self._forgotten = max(self._forgotten, old)
 
 
 def _same_layout(a: Layout, b: Layout) -> bool:

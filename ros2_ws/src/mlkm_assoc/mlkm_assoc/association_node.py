@@ -14,17 +14,22 @@ import statistics
 import sys
 import threading
 import time
+from collections import deque
 from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.subscription import Subscription
 
 from mlkm_assoc.assembly import REJECT_REASONS, Assembler, AssociationConfig, Job
-from mlkm_assoc.solver import SolverProcess, Update
+from mlkm_assoc.encoding import Update, encode
+from mlkm_assoc.solver import SolverProcess
 from mlkm_core.associators.base import available_methods
+from mlkm_core.bounds import Bounds
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
 from mlkm_ros.params import ParameterError, ParamSpec, declare_parameters, positive
@@ -32,6 +37,14 @@ from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArra
 
 DETECTION_TYPE = 'road_sensor_msgs/msg/Detection'
 NS_PER_S = conv.NS_PER_S
+#: Samples kept for the solve-time and latency statistics (the most recent ones) [-].
+STATS_WINDOW = 1000
+#: Refusals of inputs other than detections, counted with the detections' reasons.
+MESSAGE_REASONS = ('invalid_layout', 'invalid_episode')
+#: Parameters of the node itself, not of the assembly.
+NODE_PARAMS = ('diagnostics_period', 'diagnostics_window', 'warn_rejected_fraction')
+_BOUNDS = Bounds()
+BOUND_NAMES = ('min_speed', 'max_speed', 'min_stamp', 'max_stamp')
 
 
 def _check_method(value: str) -> str | None:
@@ -48,6 +61,7 @@ SPECS = [
         'associator from the core, any of mlkm_core available_methods() (applies from '
         'the next episode) [-]',
         check=_check_method,
+        constraints='one of: ' + ', '.join(available_methods()),
     ),
     ParamSpec(
         'segment_size',
@@ -74,7 +88,70 @@ SPECS = [
         check=positive,
     ),
     ParamSpec(
+        'episode_timeout',
+        60.0,
+        'an episode that never ended (its source died) is finalised with what it has once '
+        'nothing arrived for it this long [s]',
+        1e-3,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'max_finished_episodes',
+        100,
+        'finished episodes remembered to recognise their late detections; older ones are '
+        'forgotten [-]',
+        1,
+        1_000_000,
+    ),
+    ParamSpec(
+        'min_speed',
+        _BOUNDS.min_speed,
+        'slowest plausible detection velocity; slower ones are rejected [m/s]',
+        1e-9,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'max_speed',
+        _BOUNDS.max_speed,
+        'fastest plausible detection velocity; faster ones are rejected [m/s]',
+        1e-9,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'min_stamp',
+        _BOUNDS.min_stamp,
+        'earliest plausible detection stamp; earlier ones are rejected [s]',
+        0.0,
+        float(2**31 - 1),
+    ),
+    ParamSpec(
+        'max_stamp',
+        _BOUNDS.max_stamp,
+        'latest plausible detection stamp; later ones are rejected [s]',
+        0.0,
+        float(2**31 - 1),
+    ),
+    ParamSpec(
         'diagnostics_period', 1.0, 'period of /diagnostics [s]', 0.01, 3600.0, read_only=True
+    ),
+    ParamSpec(
+        'diagnostics_window',
+        10.0,
+        'the diagnostics level judges the inputs of this recent period [s]',
+        0.01,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'warn_rejected_fraction',
+        0.01,
+        'WARN when more than this fraction of the detections received within '
+        'diagnostics_window was rejected [-]',
+        0.0,
+        1.0,
     ),
 ]
 
@@ -85,15 +162,28 @@ class AssociationNode(Node):
     def __init__(self, node_name: str = 'association_node', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         values = declare_parameters(self, SPECS, self._on_change)
+        self.add_on_set_parameters_callback(self._check_bounds)
         self._diag_period: float = values.pop('diagnostics_period')
-        self._config: AssociationConfig = AssociationConfig(**values)
+        self._diag_window: float = values.pop('diagnostics_window')
+        self._warn_fraction: float = values.pop('warn_rejected_fraction')
+        try:
+            self._config: AssociationConfig = AssociationConfig(**values)
+            self._config.bounds()
+        except ValueError as exc:
+            raise ParameterError(f'speed and stamp bounds refused: {exc}') from None
         self._assembler: Assembler = Assembler(self._config, self._submit, self._on_reject)
-        self._solver: SolverProcess = SolverProcess()
-        self._solve_times: list[float] = []
-        self._latencies: list[float] = []  # segment complete -> its tracks published [s]
-        self._waits: list[float] = []  # of which waiting for the solver (earlier segments)
-        self._overheads: list[float] = []  # of which neither waiting nor solving [s]
+        self._solver: SolverProcess = SolverProcess(encode)
+        self._solve_times: deque[float] = deque(maxlen=STATS_WINDOW)
+        # segment complete -> its tracks published [s]; of which waiting for the solver
+        # (earlier segments) and neither waiting nor solving
+        self._latencies: deque[float] = deque(maxlen=STATS_WINDOW)
+        self._waits: deque[float] = deque(maxlen=STATS_WINDOW)
+        self._overheads: deque[float] = deque(maxlen=STATS_WINDOW)
         self._solver_errors: int = 0
+        self._last_error: str = ''
+        # (monotonic time, received, rejected, solver errors) at each diagnostics publication,
+        # the oldest one just before the diagnostics window
+        self._history: deque[tuple[float, int, int, int]] = deque(maxlen=10_000)
         self._tracks_published: int = 0
         self._finals_published: int = 0
         self._diagnostics_due: bool = False
@@ -123,8 +213,23 @@ class AssociationNode(Node):
         )
 
     # --- parameters -----------------------------------------------------------------------
+    def _check_bounds(self, params: list[Parameter]) -> SetParametersResult:
+        """Refuse a change that would leave min above max (the ranges alone cannot)."""
+        new = {p.name: p.value for p in params if p.name in BOUND_NAMES}
+        if not new:
+            return SetParametersResult(successful=True)
+        try:
+            AssociationConfig(**(self._config.__dict__ | new)).bounds()
+        except (ValueError, TypeError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
     def _on_change(self, changed: dict[str, Any]) -> None:
-        keep = {k: v for k, v in changed.items() if k != 'diagnostics_period'}
+        if 'diagnostics_window' in changed:
+            self._diag_window = changed['diagnostics_window']
+        if 'warn_rejected_fraction' in changed:
+            self._warn_fraction = changed['warn_rejected_fraction']
+        keep = {k: v for k, v in changed.items() if k not in NODE_PARAMS}
         if keep:
             cfg = self._config.__dict__ | keep
             self._config = AssociationConfig(**cfg)
@@ -146,10 +251,17 @@ class AssociationNode(Node):
             wanted = {self.resolve_topic_name(qos.detections_topic(n)) for n in layout.names}
         except Exception as exc:  # noqa: BLE001 - invalid values or sensor names
             self._assembler.rejected['invalid_layout'] += 1
-            self.get_logger().error(f'sensor layout refused: {exc}')
+            self.get_logger().error(
+                f'sensor layout refused, keeping the previous one: {exc}',
+                throttle_duration_sec=2.0,
+            )
             return
-        if not self._assembler.set_layout(layout, time.monotonic()):
+        runs = self._assembler.runs
+        published_ns = conv.time_to_ns(msg.header.stamp)
+        if not self._assembler.set_layout(layout, time.monotonic(), published_ns):
             return
+        if self._assembler.runs != runs:
+            self.get_logger().info('a new layout: a new run of the source begins')
         for topic in list(self._det_subs):
             if topic not in wanted:
                 self.destroy_subscription(self._det_subs.pop(topic))
@@ -177,21 +289,30 @@ class AssociationNode(Node):
         )
 
     def _on_episode(self, msg: EpisodeInfo) -> None:
-        counts = None
-        if msg.status == EpisodeInfo.STATUS_ENDED:
-            try:
-                counts = conv.episode_counts(msg)
-            except ValueError as exc:
-                self.get_logger().error(f'episode {msg.episode_id} ENDED refused: {exc}')
-                return
+        try:
+            info = conv.episode_from_msg(msg)
+        except ValueError as exc:
+            self._assembler.rejected['invalid_episode'] += 1
+            self.get_logger().error(
+                f'EpisodeInfo of episode {msg.episode_id} refused: {exc}',
+                throttle_duration_sec=2.0,
+            )
+            return
+        runs = self._assembler.runs
         self._assembler.add_episode(
-            msg.episode_id,
-            msg.num_targets,
-            conv.time_to_ns(msg.start),
-            conv.time_to_ns(msg.end),
-            counts,
+            info.episode_id,
+            info.num_targets,
+            info.start_ns,
+            info.end_ns,
+            info.counts,
             time.monotonic(),
+            info.published_ns,
         )
+        if self._assembler.runs != runs:
+            self.get_logger().info(
+                f'EpisodeInfo of episode {info.episode_id} from a restarted source: a new run '
+                'begins'
+            )
 
     def _on_tick(self) -> None:
         self._assembler.tick(time.monotonic())
@@ -233,6 +354,7 @@ class AssociationNode(Node):
         self._tracks_published += 1
         if update.error:
             self._solver_errors += 1
+            self._last_error = update.error
             self.get_logger().error(update.error)
         if not update.final:
             self._solve_times.append(update.solve_time)
@@ -245,7 +367,8 @@ class AssociationNode(Node):
             self._finals_published += 1
             self.get_logger().info(
                 f'episode {update.episode_id}: final tracks, {update.detections} detections '
-                f'in {update.tracks} tracks, {update.unassigned} unassigned'
+                f'in {update.tracks} tracks, {update.unassigned} unassigned, '
+                f'{update.missing} missing'
             )
             self._diagnostics_due = True  # published from the executor thread
 
@@ -260,16 +383,21 @@ class AssociationNode(Node):
             'accepted': a.accepted,
             'rejected': sum(a.rejected.values()),
         }
-        for reason in (*REJECT_REASONS, 'invalid_layout'):
+        for reason in (*REJECT_REASONS, *MESSAGE_REASONS):
             values[f'rejected.{reason}'] = a.rejected.get(reason, 0)
         for reason, count in sorted(a.handled.items()):
             values[f'handled.{reason}'] = count
         values.update(a.buffer_sizes())
         values['segments_done'] = a.segments_done
         values['episodes_final'] = a.episodes_final
+        values['episodes_unseen'] = a.episodes_unseen
+        values['missing_detections'] = a.missing
+        values['runs'] = a.runs
+        values['episodes_remembered'] = a.remembered_episodes()
         values['track_updates_published'] = self._tracks_published
         values['episodes_published'] = self._finals_published
         values['solver_errors'] = self._solver_errors
+        values['solver_error_last'] = self._last_error
         solve, lat = list(self._solve_times), list(self._latencies)
         values['solve_time_last'] = f'{solve[-1]:.6f}' if solve else ''
         values['solve_time_mean'] = f'{statistics.fmean(solve):.6f}' if solve else ''
@@ -291,19 +419,42 @@ class AssociationNode(Node):
             values['ingest_rate'] = ''
         return values
 
+    def diagnostics_level(self, values: dict[str, object], now: float) -> tuple[int, str]:
+        """(level, reason) judged on the last ``diagnostics_window`` seconds: ERROR after a
+        solver error, WARN when too large a fraction of the detections was rejected."""
+        sample = (now, int(values['received']), int(values['rejected']), self._solver_errors)
+        history = self._history
+        history.append(sample)
+        while len(history) > 2 and history[1][0] <= now - self._diag_window:
+            history.popleft()
+        t0, received0, rejected0, errors0 = history[0]
+        if t0 > now - self._diag_window:  # no sample before the window: since start-up
+            received0 = rejected0 = errors0 = 0
+        if self._solver_errors > errors0:
+            return DiagnosticStatus.ERROR[0], f'solver error: {self._last_error}'
+        received, rejected = sample[1] - received0, sample[2] - rejected0
+        if rejected and rejected > self._warn_fraction * max(received, 1):
+            return (
+                DiagnosticStatus.WARN[0],
+                f'{rejected} of {received} detections rejected in the last '
+                f'{self._diag_window:g} s',
+            )
+        return DiagnosticStatus.OK[0], ''
+
     def publish_diagnostics(self) -> None:
         values = self.diagnostics()
-        rejected = int(values['rejected'])
-        level = DiagnosticStatus.WARN if rejected or self._solver_errors else DiagnosticStatus.OK
+        level, reason = self.diagnostics_level(values, time.monotonic())
         message = (
-            f'{values["received"]} detections received, {rejected} rejected, '
+            f'{values["received"]} detections received, {values["rejected"]} rejected, '
             f'{values["segments_done"]} segments, {values["episodes_final"]} episodes'
         )
+        if reason:
+            message = f'{reason}; {message}'
         self._diag_pub.publish(
             conv.diagnostics_to_msg(
                 name=self.get_fully_qualified_name(),
                 hardware_id='mlkm_assoc',
-                level=level[0],
+                level=level,
                 message=message,
                 values=values,
                 stamp_ns=self.get_clock().now().nanoseconds,

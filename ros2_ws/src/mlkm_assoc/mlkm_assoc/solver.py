@@ -12,15 +12,18 @@ from __future__ import annotations
 import multiprocessing
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mlkm_assoc.assembly import Job, Part
+from mlkm_assoc.episodes import Job, Part
 from mlkm_core.associators.base import Session, make_associator
-from mlkm_core.types import Detections, Layout
-from mlkm_ros.conversions import ns_to_seconds
+from mlkm_core.types import UNASSIGNED, Detections, Layout
+
+NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -36,12 +39,13 @@ class Result:
     sensor_index: np.ndarray
     stamps_ns: np.ndarray
     velocities: np.ndarray
-    labels: np.ndarray  # stable track id, or -1 (unassigned)
+    labels: np.ndarray  # stable track id, or UNASSIGNED
     solve_time: float  # [s]
     completed_at: float  # monotonic time the segment was complete
     forced: bool
     error: str | None = None
     started_at: float = 0.0  # monotonic time the solver took the job
+    missing: int = 0  # detections ENDED announced that the node never received [-]
 
 
 class _EpisodeSolve:
@@ -64,18 +68,18 @@ def _concat(parts: list[Part]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def to_detections(part: Part) -> Detections:
     """The core's view of a segment: stamps in seconds (float64) from integer ns."""
-    return Detections(part.sensor_index, ns_to_seconds(part.stamps_ns), part.velocities)
+    return Detections(part.sensor_index, part.stamps_ns / NS_PER_S, part.velocities)
 
 
 def stable_ids(previous: np.ndarray, labels: np.ndarray) -> np.ndarray:
     """Rename ``labels`` so that they agree with ``previous`` ids where possible.
 
-    ``previous`` holds the earlier ids of the first ``len(previous)`` detections (-1 =
-    unassigned). New labels are matched one-to-one to previous ids maximising shared
-    detections; unmatched labels get fresh ids. -1 stays -1.
+    ``previous`` holds the earlier ids of the first ``len(previous)`` detections
+    (UNASSIGNED where none). New labels are matched one-to-one to previous ids maximising
+    shared detections; unmatched labels get fresh ids. UNASSIGNED stays UNASSIGNED.
     """
     labels = np.asarray(labels, dtype=np.int64)
-    out = np.full(labels.shape, -1, dtype=np.int64)
+    out = np.full(labels.shape, UNASSIGNED, dtype=np.int64)
     new_vals = np.unique(labels[labels >= 0])
     if new_vals.size == 0:
         return out
@@ -136,10 +140,11 @@ class Solver:
                     break
             if error or labels is None:
                 state.fed = list(job.parts)
-                labels = np.full(sum(p.stamps_ns.size for p in job.parts), -1, np.int64)
+                labels = np.full(sum(p.stamps_ns.size for p in job.parts), UNASSIGNED, np.int64)
             si, ns, _ = _concat(state.fed)
             aligned = np.array(
-                [previous.get(k, -1) for k in zip(si.tolist(), ns.tolist())], dtype=np.int64
+                [previous.get(k, UNASSIGNED) for k in zip(si.tolist(), ns.tolist())],
+                dtype=np.int64,
             )
             state.ids = stable_ids(aligned, labels)
             state.segments_done = len(job.parts)
@@ -161,11 +166,12 @@ class Solver:
             forced=job.forced,
             error=error,
             started_at=started_at,
+            missing=job.missing,
         )
 
     @staticmethod
     def _add(state: _EpisodeSolve, job: Job, part: Part) -> tuple[np.ndarray, str | None]:
-        """Feed one segment to the episode's session; on failure every label is -1."""
+        """Feed one segment to the episode's session; on failure every label is UNASSIGNED."""
         state.fed.append(part)
         state.segments_done += 1
         n_total = sum(p.stamps_ns.size for p in state.fed)
@@ -179,80 +185,32 @@ class Solver:
             return labels, None
         except Exception as exc:  # noqa: BLE001 - reported; the node keeps running
             return (
-                np.full(n_total, -1, dtype=np.int64),
+                np.full(n_total, UNASSIGNED, dtype=np.int64),
                 f'{job.method} failed on episode {job.episode_id}, segment '
                 f'{state.segments_done - 1}: {type(exc).__name__}: {exc}',
             )
 
 
-@dataclass(frozen=True)
-class Update:
-    """A result ready to publish: the serialized TrackArray and what the node logs."""
-
-    data: bytes  # CDR of road_sensor_msgs/msg/TrackArray
-    episode_id: int
-    final: bool
-    detections: int
-    tracks: int
-    unassigned: int
-    solve_time: float  # [s]
-    completed_at: float  # monotonic time the segment was complete
-    forced: bool
-    error: str | None
-    started_at: float  # monotonic time the solver took the job
-
-
-def encode(result: Result) -> Update:
-    """Build and serialize the TrackArray of ``result`` (in the solver process, so that the
-    node's process only hands bytes to the middleware)."""
-    from rclpy.serialization import serialize_message
-
-    from mlkm_ros.conversions import tracks_to_msg
-
-    layout = result.layout
-    msg = tracks_to_msg(
-        episode_id=result.episode_id,
-        method=result.method,
-        final=result.final,
-        segments_done=result.segments_done,
-        segments_total=result.segments_total,
-        sensor_ids=layout.sensor_ids[result.sensor_index],
-        stamps_ns=result.stamps_ns,
-        velocities=result.velocities,
-        positions=layout.positions[result.sensor_index],
-        labels=result.labels,
-        solve_time=result.solve_time,
-        stamp_ns=time.time_ns(),
-    )
-    labels = result.labels
-    return Update(
-        data=serialize_message(msg),
-        episode_id=result.episode_id,
-        final=result.final,
-        detections=int(labels.size),
-        tracks=int(np.unique(labels[labels >= 0]).size),
-        unassigned=int((labels < 0).sum()),
-        solve_time=result.solve_time,
-        completed_at=result.completed_at,
-        forced=result.forced,
-        error=result.error,
-        started_at=result.started_at,
-    )
+Encoder = Callable[[Result], Any]
 
 
 class SolverProcess:
     """The solver in a process of its own, so that solving never holds the GIL of the node's
     executor thread (fast ingest) and runs on the other core. Jobs go in with ``submit``;
-    :class:`Update` s come out of ``get`` in the same order (None once closed)."""
+    ``encode(result)`` of each comes out of ``get`` in the same order (None once closed).
+    ``encode`` runs in the solver process: it must be a module-level function (picklable)."""
 
-    def __init__(self) -> None:
+    def __init__(self, encode: Encoder) -> None:
         ctx = multiprocessing.get_context('spawn')
         self._jobs = ctx.Queue()
         # Results come back through a pipe written synchronously by the solver's main thread
         # (a Queue's feeder thread would wait for the GIL behind the next solve).
         self._results, sender = ctx.Pipe(duplex=False)
         self._proc = ctx.Process(
-            target=_serve, args=(self._jobs, sender, os.getpid()), name='mlkm_solver', daemon=True
+            target=_serve,
+            args=(self._jobs, sender, os.getpid(), encode),
+            name='mlkm_solver',
+            daemon=True,
         )
         self._proc.start()
         sender.close()  # the child holds the only writer: its exit ends get() with None
@@ -260,7 +218,7 @@ class SolverProcess:
     def submit(self, job: Job | None) -> None:
         self._jobs.put(job)
 
-    def get(self) -> Update | None:
+    def get(self) -> Any:
         try:
             return self._results.recv()
         except (EOFError, OSError):
@@ -275,7 +233,7 @@ class SolverProcess:
             self._proc.join(2.0)
 
 
-def _serve(jobs, results, parent: int) -> None:
+def _serve(jobs, results, parent: int, encode: Encoder) -> None:
     """Solver process main loop; exits on None or when the node's process is gone."""
     import queue as _queue
     import signal
@@ -287,7 +245,7 @@ def _serve(jobs, results, parent: int) -> None:
         threadpool_limits(1)  # one core for the solver: the other one is the node's
     except ImportError:
         pass
-    _warm_up()
+    _warm_up(encode)
     solver = Solver()
     while True:
         try:
@@ -303,7 +261,7 @@ def _serve(jobs, results, parent: int) -> None:
         results.send(encode(solver.run(job)))
 
 
-def _warm_up() -> None:
+def _warm_up(encode: Encoder) -> None:
     """Pay the first-call costs (imports, sklearn and message type support) before the first
     real segment arrives, so that its latency is not inflated by them."""
     from mlkm_core.associators.base import AssociatorConfig
@@ -323,7 +281,6 @@ def _warm_up() -> None:
         n_targets=n,
         method='mlkm',
         associator_config=AssociatorConfig(segment_size=3),
-        segment=0,
         segments_total=1,
         parts=(part,),
         completed_at=0.0,
