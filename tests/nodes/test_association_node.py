@@ -458,17 +458,19 @@ def run_episode(h: Harness, episode_id: int, offset: float, stamp_ns: int) -> No
     h.episode_pub.publish(conv.episode_ended_msg(episode_id, 3, start, end, stamp_ns, counts))
 
 
-@pytest.mark.parametrize('same_seed', [True, False])
-def test_simulator_restart_starts_a_new_run(harness, same_seed: bool) -> None:
+@pytest.mark.parametrize('trigger', ['layout', 'started_stamp', 'window'])
+def test_simulator_restart_starts_a_new_run(harness, trigger: str) -> None:
     h = harness()
     start_episode(h, stamp_ns=1_000)
     run_episode(h, 0, 0.0, 1_000)
     h.wait(lambda: len([m for m in h.tracks if m.final]) == 1)
-    # The simulator restarts: episode ids begin again at 0. With the same seed, the window and
-    # the detections are the same and only the publication stamps are newer; with another
-    # seed the window differs.
-    h.layout_pub.publish(conv.layout_to_msg(LAYOUT, 5_000))
-    offset = 0.0 if same_seed else 3000.0
+    # The simulator restarts: episode ids begin again at 0. It publishes its layout again
+    # (newer stamp, same content); with the same seed the window and the detections are the
+    # same and only the publication stamps are newer; with another seed the window differs.
+    if trigger == 'layout':
+        h.layout_pub.publish(conv.layout_to_msg(LAYOUT, 5_000))
+        h.wait(lambda: h.node.assembler.runs == 2)
+    offset = 3000.0 if trigger == 'window' else 0.0
     run_episode(h, 0, offset, 6_000)
     h.wait(lambda: len([m for m in h.tracks if m.final]) == 2)
     second = [m for m in h.tracks if m.final][1]
