@@ -1,4 +1,4 @@
-"""The contract's accuracy and issue 4's metrics on hand-computed cases."""
+"""The contract's accuracy and the link metrics: hand-computed cases, a dense reference, scale."""
 
 import numpy as np
 import pytest
@@ -79,3 +79,63 @@ def test_score_perfect_and_ari_treats_false_alarms_as_singletons():
 def test_score_requires_truth():
     with pytest.raises(ValueError, match='ground truth'):
         score(Detections([0], [0.0], [1.0]), np.array([0]))
+
+
+def _dense_reference(labels, target):
+    """The textbook definition: Hungarian on the dense track x target table."""
+    from scipy.optimize import linear_sum_assignment
+
+    keep = (target >= 0) & (labels >= 0)
+    if not keep.any():
+        return 0
+    rows = np.unique(labels[keep], return_inverse=True)[1]
+    cols = np.unique(target[keep], return_inverse=True)[1]
+    table = np.zeros((rows.max() + 1, cols.max() + 1))
+    np.add.at(table, (rows, cols), 1)
+    r, c = linear_sum_assignment(table, maximize=True)
+    return int(table[r, c].sum())
+
+
+@pytest.mark.parametrize('seed', range(40))
+def test_sparse_accuracy_equals_the_dense_hungarian(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 120))
+    n_targets = int(rng.integers(1, 15))
+    n_tracks = int(rng.integers(1, 15))
+    target = rng.integers(-1, n_targets, n)  # -1: false alarms
+    labels = np.where(
+        rng.random(n) < 0.6,
+        target * 3 + 1,  # mostly follow the target under a renaming
+        rng.integers(-1, n_tracks, n),  # the rest anywhere, unassigned included
+    )
+    labels[labels < -1] = -1
+    res = accuracy(labels, target)
+    assert res.correct == _dense_reference(labels, target)
+    assert res.total == int((target >= 0).sum())
+
+
+def test_accuracy_with_a_hundred_thousand_targets_stays_sparse():
+    # 100,000 targets x 120,000 tracks: the dense table alone would need 96 GB.
+    rng = np.random.default_rng(7)
+    n_targets = 100_000
+    target = np.repeat(np.arange(n_targets), 3)
+    labels = rng.permutation(n_targets)[target]
+    # One detection of 20,000 targets goes to a singleton track of its own: the best
+    # mapping keeps every target on its main track (2 or 3 shared detections beat 1).
+    moved = rng.choice(n_targets, 20_000, replace=False) * 3 + rng.integers(0, 3, 20_000)
+    labels[moved] = n_targets + np.arange(moved.size)
+    res = accuracy(labels, target)
+    assert (res.correct, res.total) == (300_000 - 20_000, 300_000)
+
+
+def test_score_of_many_targets_counts_links_exactly():
+    # 50,000 targets over 4 sensors; every target's last detection is left unassigned.
+    n_targets, n_sensors = 50_000, 4
+    target = np.repeat(np.arange(n_targets), n_sensors)
+    sensor = np.tile(np.arange(n_sensors), n_targets)
+    labels = np.where(sensor == n_sensors - 1, -1, target + 5)
+    s = score(_dets(sensor, target), labels)
+    # true links: 3 per target; output links: 2 per track, all true.
+    assert s.link_precision == 1.0
+    assert s.link_recall == pytest.approx(2 / 3)
+    assert (s.correct, s.total, s.identity_switches) == (3 * n_targets, 4 * n_targets, 0)
