@@ -28,7 +28,7 @@ def recorded_episodes(bag: Path) -> tuple[int, dict[int, float]]:
     """(number of ENDED episodes, {episode: recorded accuracy}) read from the bag."""
     from rclpy.serialization import deserialize_message
 
-    from road_sensor_msgs.msg import AssociationScore, EpisodeInfo
+    from road_sensor_msgs.msg import EpisodeInfo
     from rosbag_mcap.storage import BagReader
 
     reader = BagReader(bag)
@@ -40,7 +40,7 @@ def recorded_episodes(bag: Path) -> tuple[int, dict[int, float]]:
             if info.status == EpisodeInfo.STATUS_ENDED:
                 ended.add(info.episode_id)
         elif message.topic == '/mlkm/score':
-            score = deserialize_message(message.data, AssociationScore)
+            score = _recorded_score(message.data)
             recorded[score.episode_id] = score.accuracy
     return len(ended), recorded
 
@@ -150,15 +150,27 @@ def _player_failed(graph: Graph) -> str | None:
 
 
 def _recorded_method(bag: Path) -> str | None:
-    from rclpy.serialization import deserialize_message
 
-    from road_sensor_msgs.msg import AssociationScore
     from rosbag_mcap.storage import BagReader
 
     for message in BagReader(bag).messages(topics=['/mlkm/score']):
         if message.topic == '/mlkm/score':
-            return deserialize_message(message.data, AssociationScore).method
+            return _recorded_score(message.data).method
     return None
+
+
+def _recorded_score(data: bytes):
+    """An AssociationScore from a bag, also one recorded before the message gained its
+    trailing fields (truth_complete, ...): CDR appends fields at the end, so the older
+    encoding padded with zeros decodes, the newer fields at 0/False."""
+    from rclpy.serialization import deserialize_message
+
+    from road_sensor_msgs.msg import AssociationScore
+
+    try:
+        return deserialize_message(data, AssociationScore)
+    except Exception:  # noqa: BLE001 - rclpy raises a generic RMWError on short data
+        return deserialize_message(bytes(data) + bytes(32), AssociationScore)
 
 
 if __name__ == '__main__':

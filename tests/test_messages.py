@@ -10,6 +10,8 @@ from __future__ import annotations
 import array
 import importlib
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,6 +29,8 @@ MESSAGES = (
     'AssociationScore',
 )
 U32_MAX = 2**32 - 1
+MSG_DIR = Path(__file__).resolve().parents[1] / 'ros2_ws' / 'src' / 'road_sensor_msgs' / 'msg'
+UNIT = re.compile(r'\[[^\]]+\]')
 
 
 def msg_class(name: str):
@@ -111,6 +115,10 @@ def filled(name: str):
             adjusted_rand_index=-0.25,
             mean_accuracy=0.8125,
             episodes_scored=6,
+            truth_complete=True,
+            truth_expected=1010,
+            truth_received=1009,
+            episodes_incomplete=2,
         )
     raise KeyError(name)
 
@@ -208,3 +216,50 @@ def test_track_array_travels_over_loopback_dds(rclpy_context, spin_until):
         executor.shutdown()
         pub_node.destroy_node()
         sub_node.destroy_node()
+
+
+def field_comments(text: str) -> dict[str, str]:
+    """{field or constant name: its own comment}: the trailing comment on its line, or else
+    the comment block right above it (no blank line and no other field in between)."""
+    found: dict[str, str] = {}
+    block: list[str] = []
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line:
+            block = []
+        elif line.startswith('#'):
+            block.append(line.lstrip('#').strip())
+        else:
+            code, _, trailing = line.partition('#')
+            name = code.split()[1].split('=')[0]
+            found[name] = trailing.strip() or ' '.join(block)
+            block = []
+    return found
+
+
+def test_msg_files_are_the_built_ones():
+    assert sorted(p.stem for p in MSG_DIR.glob('*.msg')) == sorted(MESSAGES)
+
+
+@pytest.mark.parametrize('name', MESSAGES)
+def test_every_field_has_its_own_comment_with_a_unit(name):
+    comments = field_comments((MSG_DIR / f'{name}.msg').read_text())
+    fields = msg_class(name).get_fields_and_field_types()
+    assert set(fields) <= set(comments), f'{name}: fields not parsed: {set(fields) - set(comments)}'
+    missing = [f for f, c in comments.items() if not UNIT.search(c)]
+    assert not missing, f'{name}: fields without their own comment with a [unit]: {missing}'
+
+
+@pytest.mark.parametrize('name', MESSAGES)
+def test_parallel_array_counts_are_right(name):
+    """A comment that says 'the N arrays are parallel' counts the message's array fields."""
+    words = {'two': 2, 'three': 3, 'four': 4, 'five': 5}
+    text = ' '.join((MSG_DIR / f'{name}.msg').read_text().lower().replace('#', ' ').split())
+    fields = msg_class(name).get_fields_and_field_types()
+    claims = re.findall(r'the (\w+) (?:(\w+)\* )?arrays are parallel', text)
+    assert claims or name not in ('Track', 'SensorLayout', 'TrackArray')
+    for word, prefix in claims:
+        arrays = [
+            f for f, t in fields.items() if t.startswith('sequence<') and f.startswith(prefix)
+        ]
+        assert words[word] == len(arrays), f'{name}: says {word} arrays, has {arrays}'
