@@ -1,11 +1,13 @@
 """``mlkm``: the offline command line (``associate``, ``paper``, ``bench``).
 
 ``mlkm associate --input detections.csv --output tracks.csv [--method M] [--segment-size K]
-[--targets N] [--seed S]`` reads detections with the columns
-``sensor_id,position_m,stamp_s,velocity_mps`` and optionally ``target_id`` (ground truth,
--1 = false alarm), associates them and writes the same rows with a ``track_id`` column
-(-1 = unassigned). With ground truth it prints the accuracy and the other metrics. A malformed
-file is rejected with a message naming the line, exit code 2, and nothing is written.
+[--targets N] [--seed S] [--skip-invalid] [--progress]`` reads detections (the format is
+described in ``mlkm_core.csvio``), associates them and writes the same rows with a
+``track_id`` column (-1 = unassigned). With ground truth it prints the accuracy and the other
+metrics. A malformed file, or one with invalid rows (values outside --min-speed/--max-speed/
+--min-stamp/--max-stamp, duplicates), is refused with a message naming the lines, exit code
+2, and nothing is written; ``--skip-invalid`` associates the valid rows instead and writes the
+invalid ones with track -1 and their reason in a ``rejected`` column.
 
 ``mlkm paper`` reproduces the paper's experiments (see ``mlkm_experiments.paper``);
 ``mlkm bench ...`` hands its arguments to ``mlkm_experiments.bench.main``.
@@ -14,140 +16,163 @@ file is rejected with a message naming the line, exit code 2, and nothing is wri
 from __future__ import annotations
 
 import argparse
-import csv
-import math
 import os
 import sys
-import tempfile
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
 
+from mlkm_core.bounds import Bounds
+from mlkm_core.csvio import (
+    LANE,
+    LENGTH,
+    MAX_LISTED,
+    REJECTED,
+    REQUIRED,
+    TRUTH,
+    CsvDetections,
+    InputError,
+    InvalidRows,
+    write_tracks,
+)
+from mlkm_core.csvio import read_detections as read_csv
 from mlkm_core.types import Detections, Layout
 
-REQUIRED = ('sensor_id', 'position_m', 'stamp_s', 'velocity_mps')
-TRUTH = 'target_id'
-
-
-class InputError(ValueError):
-    """A malformed input file; the message names the file and line."""
+#: Detections each method associates in about a minute on one core (measured with the
+#: simulator, 20 sensors); beyond COMFORT_FACTOR times this the CLI suggests a faster one.
+COMFORTABLE = {
+    'assignment': 1_000_000,
+    'kmeans_p': 1_000_000,
+    'kmeans_up': 1_000_000,
+    'kmeans_pp': 100_000,
+    'kmeans_pp_up': 100_000,
+    'mlkm': 100_000,
+    'mlkm_no_ec': 100_000,
+    'mlkm_robust': 100_000,
+    'multiframe': 100_000,
+}
+COMFORT_FACTOR = 2
+FAST = 'assignment'
 
 
 def read_detections(path: str | Path) -> tuple[Layout, Detections, list[dict], list[str]]:
-    """Parse a detections CSV into (layout, detections, rows, header); raise InputError."""
-    path = Path(path)
-    try:
-        f = open(path, newline='')
-    except OSError as exc:
-        raise InputError(f'{path}: cannot read: {exc.strerror}') from None
-    with f:
+    """(layout, detections, rows as dicts, header) of a small, fully valid file."""
+    data = read_csv(path)
+    import csv
+
+    with open(data.path, newline='', encoding='utf-8-sig') as f:
         reader = csv.reader(f)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise InputError(
-                f'{path}: line 1: empty file, expected a header {",".join(REQUIRED)}[,{TRUTH}]'
-            ) from None
-        except (csv.Error, UnicodeDecodeError) as exc:
-            raise InputError(f'{path}: line 1: {exc}') from None
-        missing = [c for c in REQUIRED if c not in header]
-        if missing:
-            raise InputError(
-                f'{path}: line 1: missing column(s) {", ".join(missing)} '
-                f'(header must contain {",".join(REQUIRED)}[,{TRUTH}])'
-            )
-        if len(set(header)) != len(header):
-            raise InputError(f'{path}: line 1: duplicate column names')
-        col = {name: header.index(name) for name in header}
-        has_truth = TRUTH in col
-        rows: list[dict] = []
-        sensor, stamp, velocity, target = [], [], [], []
-        position_of: dict[int, tuple[float, int]] = {}
-        try:
-            for row in reader:
-                line = reader.line_num
-                if not row or all(not c.strip() for c in row):
-                    continue
-                if len(row) != len(header):
-                    raise InputError(
-                        f'{path}: line {line}: expected {len(header)} fields, got {len(row)}'
-                    )
-                sid = _integer(row[col['sensor_id']], 'sensor_id', path, line, minimum=0)
-                pos = _number(row[col['position_m']], 'position_m', path, line)
-                t = _number(row[col['stamp_s']], 'stamp_s', path, line)
-                v = _number(row[col['velocity_mps']], 'velocity_mps', path, line)
-                if v <= 0:
-                    raise InputError(f'{path}: line {line}: velocity_mps must be > 0, got {v}')
-                if pos <= 0:
-                    raise InputError(f'{path}: line {line}: position_m must be > 0, got {pos}')
-                if sid in position_of and position_of[sid][0] != pos:
-                    first_pos, first_line = position_of[sid]
-                    raise InputError(
-                        f'{path}: line {line}: sensor {sid} at position_m {pos}, but at '
-                        f'{first_pos} on line {first_line}'
-                    )
-                position_of.setdefault(sid, (pos, line))
-                if has_truth:
-                    target.append(_integer(row[col[TRUTH]], TRUTH, path, line, minimum=-1))
-                sensor.append(sid)
-                stamp.append(t)
-                velocity.append(v)
-                rows.append(dict(zip(header, row)))
-        except (csv.Error, UnicodeDecodeError) as exc:
-            raise InputError(f'{path}: line {reader.line_num}: {exc}') from None
-    if not rows:
-        raise InputError(f'{path}: line 2: no detections after the header')
-    ids = np.array(sorted(position_of, key=lambda s: position_of[s][0]), np.int64)
-    pos = np.array([position_of[int(s)][0] for s in ids])
-    dup = np.flatnonzero(np.diff(pos) == 0)
-    if dup.size:
-        a, b = int(ids[dup[0]]), int(ids[dup[0] + 1])
-        raise InputError(
-            f'{path}: line {position_of[b][1]}: sensors {a} and {b} share position_m {pos[dup[0]]}'
+        next(reader)
+        rows = [dict(zip(data.header, r)) for r in reader if r and any(c.strip() for c in r)]
+    return data.layout, data.detections, rows, data.header
+
+
+def _error(message: str) -> int:
+    print(f'mlkm associate: error: {message}', file=sys.stderr)
+    return 2
+
+
+def _output_problem(output: Path, input_path: Path) -> str | None:
+    """Why ``output`` cannot be written, checked before any work is done; None if it can."""
+    if output.is_dir():
+        return f'{output}: --output is a directory; give a file name'
+    try:
+        if output.exists() and input_path.exists() and output.samefile(input_path):
+            return f'{output}: --output is the input file; choose another name'
+    except OSError:
+        pass
+    parent = output.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        return f'{output}: cannot create the output: {parent} is not a directory'
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f'{output}: cannot create the output: {parent} is not writable'
+    return None
+
+
+class _Progress:
+    """tqdm bars on stderr, or nothing (no TTY and no --progress)."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+
+    def bar(self, desc: str, total: float | None = None, unit: str = 'it', scale: bool = False):
+        if not self.enabled:
+            return None
+        from tqdm import tqdm
+
+        return tqdm(
+            total=total,
+            bar_format=None if total is not None else '{desc}: {elapsed} elapsed',
+            desc=desc,
+            unit=unit,
+            unit_scale=scale,
+            file=sys.stderr,
+            dynamic_ncols=True,
+            leave=False,
         )
-    layout = Layout(float(pos[-1]) + 1.0, pos, ids)
-    dets = Detections(
-        layout.index_of(np.array(sensor)),
-        np.array(stamp),
-        np.array(velocity),
-        np.array(target, np.int64) if has_truth else None,
-    )
-    return layout, dets, rows, header
 
 
-def _number(text: str, name: str, path: Path, line: int) -> float:
+def _absolute(bar):
+    """progress(n) callback setting an absolute position on ``bar``."""
+    if bar is None:
+        return None
+
+    def update(n: int) -> None:
+        bar.update(n - bar.n)
+
+    return update
+
+
+def _associate(associator, data: CsvDetections, n_targets: int, progress: _Progress):
+    """Labels of the valid detections, with a per-segment bar where the method supports it."""
+    from mlkm_core.associators import Associator
+
+    layout, dets = data.layout, data.detections
+    incremental = type(associator).session is not Associator.session
+    if progress.enabled and incremental:
+        from mlkm_core.types import segments
+
+        segs = list(segments(layout.n_sensors, associator.config.segment_size))
+        bar = progress.bar(f'associating ({associator.name})', total=len(segs), unit='segment')
+        session = associator.session(layout, n_targets)
+        order, labels = [], np.zeros(0, np.int64)
+        for seg in segs:
+            idx = np.flatnonzero(np.isin(dets.sensor_index, seg))
+            order.append(idx)
+            labels = session.add_segment(dets.subset(idx))
+            bar.update()
+        bar.close()
+        out = np.full(len(dets), -1, np.int64)
+        out[np.concatenate(order)] = labels
+        return out
+    bar = progress.bar(f'associating ({associator.name})', unit='s')
+    if bar is None:
+        return associator.associate(layout, dets, n_targets)
+    done = threading.Event()
+
+    def tick() -> None:  # the method reports nothing: show the elapsed time
+        while not done.wait(1.0):
+            bar.refresh()
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    ticker.start()
     try:
-        value = float(text)
-    except ValueError:
-        raise InputError(f'{path}: line {line}: {name} is not a number: {text!r}') from None
-    if not math.isfinite(value):
-        raise InputError(f'{path}: line {line}: {name} must be finite, got {text!r}')
-    return value
+        return associator.associate(layout, dets, n_targets)
+    finally:
+        done.set()
+        ticker.join()
+        bar.close()
 
 
-def _integer(text: str, name: str, path: Path, line: int, minimum: int) -> int:
-    try:
-        value = int(text.strip())
-    except ValueError:
-        raise InputError(f'{path}: line {line}: {name} is not an integer: {text!r}') from None
-    if value < minimum:
-        raise InputError(f'{path}: line {line}: {name} must be >= {minimum}, got {value}')
-    return value
-
-
-def _write_atomic(path: Path, header: list[str], rows: list[dict], labels: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
-    try:
-        with os.fdopen(fd, 'w', newline='') as f:
-            w = csv.writer(f)
-            w.writerow([*header, 'track_id'])
-            for row, label in zip(rows, labels):
-                w.writerow([*(row[h] for h in header), int(label)])
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def _listing(problems) -> str:
+    lines = [f'  line {p.line}: {p.message} [{p.reason}]' for p in problems[:MAX_LISTED]]
+    if len(problems) > MAX_LISTED:
+        lines.append(f'  ... and {len(problems) - MAX_LISTED} more')
+    return '\n'.join(lines)
 
 
 def cmd_associate(args: argparse.Namespace) -> int:
@@ -155,30 +180,80 @@ def cmd_associate(args: argparse.Namespace) -> int:
     from mlkm_core.metrics import score
 
     try:
-        layout, dets, rows, header = read_detections(args.input)
-    except InputError as exc:
-        print(f'mlkm associate: error: {exc}', file=sys.stderr)
-        return 2
-    if 'track_id' in header:
-        print(
-            f'mlkm associate: error: {args.input}: line 1: input already has a track_id column',
-            file=sys.stderr,
-        )
-        return 2
-    n_targets = args.targets or int(np.bincount(dets.sensor_index).max())
+        bounds = Bounds(args.min_speed, args.max_speed, args.min_stamp, args.max_stamp)
+    except ValueError as exc:
+        return _error(f'invalid bounds: {exc}')
+    input_path, output = Path(args.input), Path(args.output)
+    problem = _output_problem(output, input_path)
+    if problem:
+        return _error(problem)
     try:
         associator = make_associator(
             args.method, AssociatorConfig(segment_size=args.segment_size, seed=args.seed)
         )
     except ValueError as exc:
-        print(f'mlkm associate: error: {exc}', file=sys.stderr)
-        return 2
-    labels = associator.associate(layout, dets, n_targets)
-    _write_atomic(Path(args.output), header, rows, labels)
+        return _error(str(exc))
+    progress = _Progress(sys.stderr.isatty() if args.progress is None else args.progress)
+    size = input_path.stat().st_size if input_path.is_file() else None
+    bar = progress.bar('reading', total=size, unit='B', scale=True)
+    failure = None
+    try:
+        data = read_csv(input_path, bounds, args.skip_invalid, _absolute(bar))
+    except InvalidRows as exc:
+        n = len(exc.problems)
+        failure = (
+            f'{exc.path}: {n} invalid row{"s" if n != 1 else ""}; nothing was written. '
+            'Correct or remove them, or pass --skip-invalid to associate the valid rows and '
+            f'write these with track_id -1 and the reason in a {REJECTED} column:\n'
+            + _listing(exc.problems)
+        )
+    except InputError as exc:
+        failure = str(exc)
+    finally:
+        if bar is not None:
+            bar.close()
+    if failure:
+        return _error(failure)
+    layout, dets = data.layout, data.detections
+    rejected = [data.problems[k] for k in sorted(data.problems)]
+    if rejected:
+        print(
+            f'mlkm associate: warning: {len(rejected)} invalid row(s) skipped, written with '
+            f'track_id -1 and the reason in the {REJECTED} column:\n{_listing(rejected)}',
+            file=sys.stderr,
+        )
+    comfortable = COMFORTABLE.get(args.method)
+    if comfortable and len(dets) > COMFORT_FACTOR * comfortable:
+        print(
+            f'mlkm associate: warning: {len(dets)} detections is far beyond what {args.method} '
+            f'handles in about a minute ({comfortable}); this can take very long. '
+            f'--method {FAST} is much faster.',
+            file=sys.stderr,
+        )
+    n_targets = args.targets or int(np.bincount(dets.sensor_index).max())
+    t0 = time.perf_counter()
+    try:
+        labels = _associate(associator, data, n_targets, progress)
+    except ValueError as exc:
+        return _error(f'{args.method} cannot associate this input: {exc}')
+    elapsed = time.perf_counter() - t0
+    bar = progress.bar('writing', total=data.n_rows, unit='row', scale=True)
+    try:
+        write_tracks(output, data, labels, args.skip_invalid, _absolute(bar))
+    except InputError as exc:
+        failure = f'{exc}; nothing was written'
+    except OSError as exc:
+        failure = f'{output}: cannot write: {exc.strerror or exc}'
+    finally:
+        if bar is not None:
+            bar.close()
+    if failure:
+        return _error(failure)
     n_tracks = np.unique(labels[labels >= 0]).size
     print(
         f'{len(dets)} detections from {layout.n_sensors} sensors -> {n_tracks} tracks '
-        f'({args.method}, {n_targets} targets) written to {args.output}'
+        f'({args.method}, {n_targets} targets, {elapsed:.1f} s) written to {args.output}'
+        + (f'; {len(rejected)} invalid rows written as rejected' if rejected else '')
     )
     if dets.target is not None:
         s = score(dets, labels)
@@ -207,6 +282,28 @@ def _positive(text: str) -> int:
     return value
 
 
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not an integer: {text!r}') from None
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError('must be in [0, 2^32 - 1]')
+    return value
+
+
+def _finite(text: str) -> float:
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError('must be finite')
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     from mlkm_core.associators import AssociatorConfig, available_methods
 
@@ -215,7 +312,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest='command', required=True)
     a = sub.add_parser('associate', help='associate detections from a CSV file')
     a.add_argument(
-        '--input', required=True, help='detections CSV: ' + ','.join(REQUIRED) + f'[,{TRUTH}]'
+        '--input',
+        required=True,
+        help='detections CSV: ' + ','.join(REQUIRED) + f'[,{TRUTH}][,{LANE}][,{LENGTH}]',
     )
     a.add_argument('--output', required=True, help='output CSV: the input plus track_id')
     a.add_argument(
@@ -233,7 +332,30 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help='number of targets (default: the largest per-sensor count)',
     )
-    a.add_argument('--seed', type=int, default=0, help='random seed of the method')
+    a.add_argument(
+        '--seed', type=_seed, default=0, help='random seed of the method, 0 to 2^32-1 (default: 0)'
+    )
+    bounds = Bounds()
+    for flag, value, what in (
+        ('--min-speed', bounds.min_speed, 'slowest accepted velocity [m/s]'),
+        ('--max-speed', bounds.max_speed, 'fastest accepted velocity [m/s]'),
+        ('--min-stamp', bounds.min_stamp, 'earliest accepted stamp [s]'),
+        ('--max-stamp', bounds.max_stamp, 'latest accepted stamp [s]'),
+    ):
+        a.add_argument(flag, type=_finite, default=value, help=f'{what} (default: {value:g})')
+    a.add_argument(
+        '--skip-invalid',
+        action='store_true',
+        help='associate the valid rows and write the invalid ones (bad values, duplicates) '
+        f'with track_id -1 and the reason in a {REJECTED} column; without it an invalid row '
+        'refuses the whole file (exit 2, the rows listed)',
+    )
+    a.add_argument(
+        '--progress',
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help='progress bars on stderr (default: only when stderr is a terminal)',
+    )
     a.set_defaults(func=cmd_associate)
     p = sub.add_parser('paper', help="reproduce the paper's experiments")
     p.add_argument(
