@@ -1,0 +1,125 @@
+"""The association node's parameters: one table with descriptions, units and ranges.
+
+The defaults of the physical bounds are those of :class:`mlkm_core.bounds.Bounds`;
+config/association_node.param.yaml repeats every default (a test keeps them equal).
+"""
+
+from __future__ import annotations
+
+from mlkm_core.associators.base import available_methods
+from mlkm_core.bounds import Bounds
+from mlkm_ros.params import ParamSpec, positive
+
+#: Parameters of the node itself, not of the assembly.
+NODE_PARAMS = ('diagnostics_period', 'diagnostics_window', 'warn_rejected_fraction')
+_BOUNDS = Bounds()
+BOUND_NAMES = ('min_speed', 'max_speed', 'min_stamp', 'max_stamp')
+
+
+def _check_method(value: str) -> str | None:
+    methods = available_methods()
+    if value in methods:
+        return None
+    return f'unknown method {value!r}; choose one of {", ".join(methods)}'
+
+
+SPECS = [
+    ParamSpec(
+        'method',
+        'mlkm',
+        'associator from the core, any of mlkm_core available_methods() (applies from '
+        'the next episode) [-]',
+        check=_check_method,
+        constraints='one of: ' + ', '.join(available_methods()),
+    ),
+    ParamSpec(
+        'segment_size',
+        5,
+        'K: sensors per road segment; one association update per completed segment '
+        '(applies from the next episode) [-]',
+        1,
+        100000,
+    ),
+    ParamSpec(
+        'seed',
+        0,
+        'random state of the associator (applies from the next episode) [-]',
+        0,
+        2**31 - 1,
+    ),
+    ParamSpec(
+        'completion_timeout',
+        5.0,
+        'after an episode ended, associate what is there once nothing arrived for this '
+        'long; also how long a detection waits for its episode [s]',
+        1e-3,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'episode_timeout',
+        60.0,
+        'an episode that never ended (its source died) is finalised with what it has once '
+        'nothing arrived for it this long [s]',
+        1e-3,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'max_finished_episodes',
+        100,
+        'finished episodes remembered to recognise their late detections; older ones are '
+        'forgotten [-]',
+        1,
+        1_000_000,
+    ),
+    ParamSpec(
+        'min_speed',
+        _BOUNDS.min_speed,
+        'slowest plausible detection velocity; slower ones are rejected [m/s]',
+        1e-9,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'max_speed',
+        _BOUNDS.max_speed,
+        'fastest plausible detection velocity; faster ones are rejected [m/s]',
+        1e-9,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'min_stamp',
+        _BOUNDS.min_stamp,
+        'earliest plausible detection stamp; earlier ones are rejected [s]',
+        0.0,
+        float(2**31 - 1),
+    ),
+    ParamSpec(
+        'max_stamp',
+        _BOUNDS.max_stamp,
+        'latest plausible detection stamp; later ones are rejected [s]',
+        0.0,
+        float(2**31 - 1),
+    ),
+    ParamSpec(
+        'diagnostics_period', 1.0, 'period of /diagnostics [s]', 0.01, 3600.0, read_only=True
+    ),
+    ParamSpec(
+        'diagnostics_window',
+        10.0,
+        'the diagnostics level judges the inputs of this recent period [s]',
+        0.01,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'warn_rejected_fraction',
+        0.01,
+        'WARN when more than this fraction of the detections received within '
+        'diagnostics_window was rejected [-]',
+        0.0,
+        1.0,
+    ),
+]
