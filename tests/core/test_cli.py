@@ -1,10 +1,12 @@
 """The offline CLI: ``mlkm associate`` on good and malformed CSV files."""
 
 import csv
+import re
 
 import numpy as np
 import pytest
 
+from mlkm_assoc import cli
 from mlkm_assoc.cli import main, read_detections
 from mlkm_core.simulator import SimConfig, simulate
 
@@ -140,3 +142,204 @@ def test_missing_file_and_unknown_method(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(['associate', '--input', 'x', '--output', 'y', '--method', 'nope'])
     assert exc.value.code == 2
+
+
+def _associate(tmp_path, name, *extra):
+    return main(
+        ['associate', '--input', str(tmp_path / name), '--output', str(tmp_path / 'out.csv')]
+        + list(extra)
+    )
+
+
+def _lines(tmp_path, name='in.csv'):
+    return (tmp_path / name).read_text().splitlines()
+
+
+def _save(tmp_path, lines, name='bad.csv'):
+    (tmp_path / name).write_text('\n'.join(lines) + '\n')
+
+
+def _out_rows(tmp_path):
+    with open(tmp_path / 'out.csv') as f:
+        return list(csv.DictReader(f))
+
+
+def _absurd_rows(lines):
+    """Two extra rows with a velocity of 1e308 m/s and a stamp of 1e300 s, as lines 3 and 6."""
+    fast = lines[1].split(',')
+    fast[3] = '1e308'
+    late = lines[2].split(',')
+    late[2] = '1e300'
+    return [lines[0], lines[1], ','.join(fast), *lines[2:4], ','.join(late), *lines[4:]]
+
+
+def test_absurd_values_refuse_the_file_naming_every_line(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    _save(tmp_path, _absurd_rows(_lines(tmp_path)))
+    assert _associate(tmp_path, 'bad.csv') == 2
+    err = capsys.readouterr().err
+    assert 'bad.csv: 2 invalid rows' in err
+    assert 'line 3: velocity_mps 1e+308 is outside [0.01, 150] m/s' in err
+    assert 'line 6: stamp_s 1e300 is outside [0, 2.14748e+09] s' in err
+    assert '--skip-invalid' in err
+    assert not (tmp_path / 'out.csv').exists()
+
+
+def test_skip_invalid_associates_the_rest_and_writes_the_rejected_rows(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    assert _associate(tmp_path, 'in.csv') == 0
+    clean_out = capsys.readouterr().out
+    clean = [r['track_id'] for r in _out_rows(tmp_path)]
+    _save(tmp_path, _absurd_rows(_lines(tmp_path)))
+    assert _associate(tmp_path, 'bad.csv', '--skip-invalid') == 0
+    captured = capsys.readouterr()
+    assert 'warning: 2 invalid row(s) skipped' in captured.err
+    rows = _out_rows(tmp_path)
+    assert len(rows) == len(clean) + 2
+    assert list(rows[0])[-2:] == ['track_id', 'rejected']
+    assert [(r['track_id'], r['rejected']) for r in (rows[1], rows[4])] == [
+        ('-1', 'speed_out_of_range'),
+        ('-1', 'stamp_out_of_range'),
+    ]
+    assert rows[1]['velocity_mps'] == '1e308' and rows[4]['stamp_s'] == '1e300'
+    kept = [r for i, r in enumerate(rows) if i not in (1, 4)]
+    assert all(r['rejected'] == '' for r in kept)
+    # the valid rows are exactly the clean file: same tracks, same accuracy
+    assert [r['track_id'] for r in kept] == clean
+    accuracy_line = re.search(r'accuracy: .*', clean_out).group(0)
+    assert accuracy_line in captured.out
+
+
+def test_bounds_options_move_the_limits(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    lines = _lines(tmp_path)
+    early = lines[5].split(',')
+    early[2] = '-2.5'
+    lines[5] = ','.join(early)
+    _save(tmp_path, lines)
+    assert _associate(tmp_path, 'bad.csv') == 2
+    assert 'line 6: stamp_s -2.5 is outside [0, ' in capsys.readouterr().err
+    assert _associate(tmp_path, 'bad.csv', '--min-stamp', '-10') == 0
+    assert _associate(tmp_path, 'bad.csv', '--min-stamp', '-10', '--max-speed', '20') == 2
+    assert 'outside [0.01, 20] m/s (--min-speed/--max-speed)' in capsys.readouterr().err
+    assert _associate(tmp_path, 'bad.csv', '--min-speed', '5', '--max-speed', '4') == 2
+    assert 'invalid bounds' in capsys.readouterr().err
+
+
+def test_duplicate_rows_are_refused_or_skipped(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    lines = _lines(tmp_path)
+    _save(tmp_path, [*lines, lines[7]])  # line 8 again, as the last line
+    assert _associate(tmp_path, 'bad.csv') == 2
+    err = capsys.readouterr().err
+    assert f'line {len(lines) + 1}: duplicate of line 8' in err
+    assert _associate(tmp_path, 'bad.csv', '--skip-invalid') == 0
+    rows = _out_rows(tmp_path)
+    assert (rows[-1]['track_id'], rows[-1]['rejected']) == ('-1', 'duplicate')
+    assert rows[6]['rejected'] == '' and int(rows[6]['track_id']) >= 0
+
+
+def test_lane_and_length_columns_are_read_and_keyed(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    lines = _lines(tmp_path)
+    with_lane = [lines[0] + ',lane,length_m'] + [f'{r},0,4.5' for r in lines[1:]]
+    # the same sensor and stamp on another lane is another vehicle, not a duplicate
+    with_lane.append(lines[7] + ',1,')
+    _save(tmp_path, with_lane)
+    layout, dets, rows, header = read_detections(tmp_path / 'bad.csv')
+    assert header[-2:] == ['lane', 'length_m']
+    assert dets.lane.tolist() == [0] * (len(lines) - 1) + [1]
+    assert np.isnan(dets.length[-1]) and dets.length[0] == 4.5
+    assert _associate(tmp_path, 'bad.csv') == 0
+    _save(tmp_path, [*with_lane, lines[7] + ',1,4.0'])
+    assert _associate(tmp_path, 'bad.csv') == 2
+    assert f'line {len(lines) + 2}: duplicate of line {len(lines) + 1}' in capsys.readouterr().err
+
+
+def test_output_that_cannot_be_a_file_is_a_clear_error(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    (tmp_path / 'dir').mkdir()
+    rc = main(['associate', '--input', str(tmp_path / 'in.csv'), '--output', str(tmp_path)])
+    assert rc == 2
+    assert '--output is a directory' in capsys.readouterr().err
+    parent_is_file = tmp_path / 'in.csv' / 'out.csv'
+    rc = main(['associate', '--input', str(tmp_path / 'in.csv'), '--output', str(parent_is_file)])
+    assert rc == 2
+    assert 'in.csv is not a directory' in capsys.readouterr().err
+    rc = main(
+        ['associate', '--input', str(tmp_path / 'in.csv'), '--output', str(tmp_path / 'in.csv')]
+    )
+    assert rc == 2
+    assert '--output is the input file' in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['dir', 'in.csv']
+
+
+@pytest.mark.parametrize('seed', ['-1', str(2**32), 'x'])
+def test_seed_out_of_range_is_a_usage_error(tmp_path, capsys, seed):
+    _write(tmp_path / 'in.csv')
+    with pytest.raises(SystemExit) as exc:
+        _associate(tmp_path, 'in.csv', '--method', 'kmeans_pp', '--seed', seed)
+    assert exc.value.code == 2
+    assert 'argument --seed' in capsys.readouterr().err
+    assert _associate(tmp_path, 'in.csv', '--method', 'kmeans_pp', '--seed', str(2**32 - 1)) == 0
+
+
+def test_non_utf8_byte_is_reported_on_its_own_line(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    data = (tmp_path / 'in.csv').read_bytes().split(b'\n')
+    data[99] = data[99][:4] + b'\xff' + data[99][5:]  # line 100, deep past the first buffer
+    (tmp_path / 'bad.csv').write_bytes(b'\n'.join(data))
+    assert _associate(tmp_path, 'bad.csv') == 2
+    err = capsys.readouterr().err
+    assert 'bad.csv: line 100: not UTF-8 text (byte 0xff at column 5)' in err
+
+
+def test_many_targets_are_scored_without_a_dense_table(tmp_path, capsys):
+    # 20,000 targets over two sensors: a dense track x target table and its Hungarian
+    # assignment would need GBs and hours; the sparse matching needs neither.
+    ds = simulate(SimConfig(n_targets=20_000, n_sensors=2, start_increment_min=0.0), 3)
+    d = ds.detections
+    pos = ds.layout.positions.tolist()
+    lines = [HEADER] + [
+        f'{k},{pos[k]!r},{t!r},{v!r},{g}'
+        for k, t, v, g in zip(d.sensor_index.tolist(), d.stamp.tolist(), d.velocity.tolist(),
+                              d.target.tolist(), strict=True)
+    ]  # fmt: skip
+    _save(tmp_path, lines, 'in.csv')
+    assert _associate(tmp_path, 'in.csv', '--method', 'assignment') == 0
+    out = capsys.readouterr().out
+    rows = _out_rows(tmp_path)
+    from mlkm_core.metrics import accuracy
+
+    acc = accuracy(
+        np.array([int(r['track_id']) for r in rows]), np.array([int(r['target_id']) for r in rows])
+    )
+    assert acc.total == 40_000 and acc.accuracy > 0.9
+    assert f'accuracy: {100 * acc.accuracy:.2f} % ({acc.correct}/40000)' in out
+
+
+def test_progress_goes_to_stderr_only_when_asked(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    assert _associate(tmp_path, 'in.csv') == 0
+    quiet = capsys.readouterr()
+    assert quiet.err == ''  # not a terminal: no bars in pipes
+    plain = (tmp_path / 'out.csv').read_text()
+    for method in ('mlkm', 'kmeans_pp'):
+        assert _associate(tmp_path, 'in.csv', '--progress', '--method', method) == 0
+        shown = capsys.readouterr()
+        assert 'reading' in shown.err and f'associating ({method})' in shown.err
+        assert 'writing' in shown.err and 'associating' not in shown.out
+    # the per-segment path gives the very tracks of the batch run
+    assert _associate(tmp_path, 'in.csv', '--progress') == 0
+    assert (tmp_path / 'out.csv').read_text() == plain
+    assert capsys.readouterr().out == quiet.out
+
+
+def test_input_far_beyond_a_methods_size_gets_a_warning(tmp_path, capsys, monkeypatch):
+    _write(tmp_path / 'in.csv')
+    monkeypatch.setitem(cli.COMFORTABLE, 'kmeans_pp', 10)
+    assert _associate(tmp_path, 'in.csv', '--method', 'kmeans_pp') == 0
+    err = capsys.readouterr().err
+    assert 'far beyond what kmeans_pp handles' in err and '--method assignment' in err
+    assert _associate(tmp_path, 'in.csv', '--method', 'mlkm') == 0
+    assert capsys.readouterr().err == ''
