@@ -245,7 +245,9 @@ def test_msg_files_are_the_built_ones():
 def test_every_field_has_its_own_comment_with_a_unit(name):
     comments = field_comments((MSG_DIR / f'{name}.msg').read_text())
     fields = msg_class(name).get_fields_and_field_types()
-    assert set(fields) <= set(comments), f'{name}: fields not parsed: {set(fields) - set(comments)}'
+    assert set(fields) <= set(comments), (
+        f'{name}: fields not parsed: {set(fields) - set(comments)}'
+    )
     missing = [f for f, c in comments.items() if not UNIT.search(c)]
     assert not missing, f'{name}: fields without their own comment with a [unit]: {missing}'
 
