@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticArray
@@ -30,8 +31,8 @@ SENSORS = (10, 11, 12)
 POSITIONS = (100.0, 200.0, 300.0)
 LAYOUT = Layout(
     road_length=400.0,
-    positions=__import__('numpy').array(POSITIONS),
-    sensor_ids=__import__('numpy').array(SENSORS),
+    positions=np.array(POSITIONS),
+    sensor_ids=np.array(SENSORS),
     names=('a', 'b', 'c'),
 )
 
@@ -232,6 +233,22 @@ def test_new_run_truth_before_its_episode_info(harness) -> None:
     h.final(0, 500.0, swap=True)
     s = h.wait_scores(2)[1]
     assert (s.correct, s.total, s.truth_complete) == (5, 6, True)
+
+
+def test_old_run_final_after_the_new_layout_is_still_scored(harness) -> None:
+    """The association node's last final of the old run can arrive after the restarted
+    source's layout: it is scored with its truth, complete; the new run's episode 0 too."""
+    h = harness()
+    h.started(0, 0.0, 2.0)
+    h.truth(0, 0.0)
+    h.ended(0, 0.0, 60.0)
+    h.layout(stamp_s=100.0)  # the source restarted
+    h.final(0, 0.0, swap=True)
+    s = h.wait_scores(1)[0]
+    assert (s.episode_id, s.correct, s.total, s.truth_complete) == (0, 5, 6, True)
+    h.episode(0, 0.0, 101.0)  # the new run: same window, published later
+    s = h.wait_scores(2)[1]
+    assert (s.episode_id, s.correct, s.truth_complete, s.episodes_scored) == (0, 6, True, 2)
 
 
 def test_memory_stays_bounded(harness) -> None:

@@ -12,8 +12,9 @@ in integer ns) and calls the core's one scoring function, ``mlkm_core.metrics.sc
 * Runs: a restarted source numbers its episodes from 0 again. A new run begins with a layout
   of other content or published later than the current run began, or, for one episode id,
   with an EpisodeInfo of another window or number of targets (or a STARTED published at
-  another time). The old run's pending finals are scored with what they have, its state for
-  those ids is forgotten, and the new run's episodes are scored as they come.
+  another time). The scored ids are forgotten; an old episode still waiting for its final or
+  truth is scored as usual, or with what it has when the new run's EpisodeInfo for its id
+  comes; the new run's episodes are scored as they come.
 * Memory: scored ids are remembered (to drop their late truth and repeated finals) up to
   ``max_scored_episodes``; an unscored episode without input for ``forget_after`` seconds,
   or beyond ``max_open_episodes``, is dropped (counted); at most ``max_buffered_truth``
@@ -373,16 +374,10 @@ class ScorerNode(Node):
             self._buffered += len(moved)
 
     def _new_run(self, stamp_ns: int) -> None:
-        """The source restarted: score the old run's pending finals with what they have;
-        forget the rest, but keep episodes whose STARTED came after the new layout."""
-        for episode in sorted(self._open):
-            ep = self._open[episode]
-            if ep.started_ns is not None and ep.started_ns >= stamp_ns and ep.final is None:
-                continue
-            if ep.final is not None:
-                self._score(episode)
-            else:
-                self._drop(episode, 'a new run of the source began')
+        """The source restarted: its episode ids start again, so the scored ids are
+        forgotten. Unscored episodes stay: the old run's last finals may still be on their
+        way; each is scored as usual, or replaced when the new run's EpisodeInfo for its id
+        comes, or dropped after ``forget_after``."""
         self._scored.clear()
         self._run_ns = max(self._run_ns, stamp_ns)
         self._runs += 1
