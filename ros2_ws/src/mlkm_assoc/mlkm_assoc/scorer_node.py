@@ -30,6 +30,7 @@ import math
 import sys
 import time
 from collections import Counter, OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -390,7 +391,8 @@ class ScorerNode(Node):
 
     # --- scoring --------------------------------------------------------------------------
     @staticmethod
-    def _complete(ep: _Episode, truth: dict[Key, tuple[int, float]]) -> bool:
+    def _complete(ep: _Episode, truth: Iterable[Key]) -> bool:
+        """Whether ``truth`` (keys inside the window) holds every ENDED count."""
         if ep.counts is None:
             return False
         have = Counter(sensor for sensor, _ in truth)
@@ -402,7 +404,7 @@ class ScorerNode(Node):
             ep.final is not None
             and ep.counts is not None
             and len(ep.truth) >= sum(ep.counts.values())  # cheap, before the full count
-            and self._complete(ep, ep.truth)
+            and self._complete(ep, [k for k in ep.truth if ep.inside(k[1])])
         ):
             self._score(episode)
 
