@@ -241,6 +241,17 @@ def time_window(dataset: Dataset) -> tuple[float, float]:
     return float(stamps.min()), float(stamps.max())
 
 
+def stream_origin(datasets: list[Dataset]) -> float:
+    """Whole seconds to add to every stamp so that no episode starts before t = 0.
+
+    Start times may be negative (a negative start-time increment moves the first targets
+    before t = 0), but a live stream carries ROS times, which cannot be. Adding the same whole
+    number of seconds to every stamp keeps all relative times, hence every result, unchanged.
+    """
+    first = min((time_window(d)[0] for d in datasets), default=0.0)
+    return float(math.ceil(-first)) if first < 0 else 0.0
+
+
 def shift(dataset: Dataset, offset: float) -> Dataset:
     """The same episode with every stamp moved by ``offset`` seconds."""
     d = dataset.detections

@@ -6,7 +6,13 @@ publishes EpisodeInfo STARTED, then every detection in passage-time order across
 road (each on its sensor's topic, header.stamp = passage time) with its GroundTruth, then
 EpisodeInfo ENDED with the per-sensor counts. ``real_time_factor`` > 0 paces the messages by
 passage time; 0 publishes as fast as delivery allows. All data topics are reliable KEEP_ALL
-and the node waits for its subscribers and for their acknowledgements, so nothing is lost.
+and the node waits for its subscribers and for their acknowledgements, so nothing is lost:
+every publisher applies the shared back-pressure policy (``mlkm_ros.publishing``), so a slow
+subscriber slows the node down instead of breaking it.
+
+Stamps are the core's passage times moved by a whole number of seconds
+(``mlkm_core.simulator.stream_origin``) so that the stream starts at t >= 0 (ROS times cannot
+be negative); relative times, hence every association result, are the core's.
 """
 
 from __future__ import annotations
@@ -19,17 +25,18 @@ from typing import Any
 
 import numpy as np
 import rclpy
-from rclpy.duration import Duration
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
 
-from mlkm_core.simulator import SimConfig, simulate_episodes, time_window
+from mlkm_core.simulator import SimConfig, simulate_episodes, stream_origin, time_window
 from mlkm_core.types import Dataset
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
 from mlkm_ros.params import ParameterError, ParamSpec, declare_parameters, non_negative
+from mlkm_ros.publishing import PublishTimeout, ReliablePublisher, total_stats, wait_all_acked
 from road_sensor_msgs.msg import Detection, EpisodeInfo, GroundTruth, SensorLayout
 
 #: Descriptions (with units) and inclusive ranges of the simulator's settings.
@@ -187,19 +194,24 @@ class SensorSimNode(Node):
         self._datasets: list[Dataset] = simulate_episodes(
             cfg.sim, cfg.seed, cfg.episodes, cfg.episode_gap
         )
+        #: [ns] added to every passage time, so that the stream starts at t >= 0.
+        self._origin_ns: int = conv.seconds_to_ns(stream_origin(self._datasets))
         layout = self._datasets[0].layout
         self._layout = layout
+        self._stop = threading.Event()
         self._layout_pub: Publisher = self.create_publisher(
             SensorLayout, qos.LAYOUT_TOPIC, qos.LAYOUT_QOS
         )
-        self._episode_pub: Publisher = self.create_publisher(
-            EpisodeInfo, qos.EPISODE_TOPIC, qos.EPISODE_QOS
+        self._episode_pub = self._reliable(
+            self.create_publisher(EpisodeInfo, qos.EPISODE_TOPIC, qos.EPISODE_QOS)
         )
-        self._truth_pub: Publisher = self.create_publisher(
-            GroundTruth, qos.GROUND_TRUTH_TOPIC, qos.GROUND_TRUTH_QOS
+        self._truth_pub = self._reliable(
+            self.create_publisher(GroundTruth, qos.GROUND_TRUTH_TOPIC, qos.GROUND_TRUTH_QOS)
         )
-        self._det_pubs: list[Publisher] = [
-            self.create_publisher(Detection, qos.detections_topic(name), qos.DETECTIONS_QOS)
+        self._det_pubs: list[ReliablePublisher] = [
+            self._reliable(
+                self.create_publisher(Detection, qos.detections_topic(name), qos.DETECTIONS_QOS)
+            )
             for name in layout.names
         ]
         self._clock_pub: Publisher | None = (
@@ -208,7 +220,6 @@ class SensorSimNode(Node):
             else None
         )
         self._anchor: tuple[float, float] | None = None  # (passage time, wall time)
-        self._stop = threading.Event()
         self._done = threading.Event()
         self._error: str | None = None
         self._published = 0
@@ -216,6 +227,7 @@ class SensorSimNode(Node):
         self.get_logger().info(
             f'{layout.n_sensors} sensors on {layout.road_length:g} m, {cfg.episodes} episodes '
             f'of {cfg.sim.n_targets} targets, seed {cfg.seed}, real_time_factor {self._rtf:g}'
+            + (f', stamps start at +{self._origin_ns / 1e9:g} s' if self._origin_ns else '')
         )
         self._thread = threading.Thread(target=self._run, name='sensor_sim', daemon=True)
         self._thread.start()
@@ -227,19 +239,38 @@ class SensorSimNode(Node):
             self._anchor = None
 
     # --- publishing -----------------------------------------------------------------------
+    def _reliable(self, publisher: Publisher) -> ReliablePublisher:
+        return ReliablePublisher(publisher, self.context, self._stop)
+
+    def _interrupted(self) -> bool:
+        """A stop request or Ctrl-C (which shuts the context down under the worker thread)."""
+        return self._stop.is_set() or not self.context.ok()
+
     def _now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
+
+    def _subscription_counts(self) -> tuple[int, int] | None:
+        """(fewest subscribers of a detection topic, ground-truth subscribers); None when
+        interrupted (the context may vanish between two counts)."""
+        try:
+            least = min(p.publisher.get_subscription_count() for p in self._det_pubs)
+            truth = self._truth_pub.publisher.get_subscription_count()
+        except RCLError:
+            if self._interrupted():
+                return None
+            raise
+        return least, truth
 
     def _wait_for_subscribers(self) -> bool:
         cfg = self._config
         deadline = None if cfg.wait_timeout <= 0 else time.monotonic() + cfg.wait_timeout
         announced = False
-        while not self._stop.is_set():
-            det_ok = all(
-                p.get_subscription_count() >= cfg.wait_for_subscribers for p in self._det_pubs
-            )
-            truth_ok = self._truth_pub.get_subscription_count() >= cfg.wait_for_truth_subscribers
-            if det_ok and truth_ok:
+        while not self._interrupted():
+            counts = self._subscription_counts()
+            if counts is None:
+                return False
+            least, truth = counts
+            if least >= cfg.wait_for_subscribers and truth >= cfg.wait_for_truth_subscribers:
                 return True
             if not announced:
                 self.get_logger().info(
@@ -248,12 +279,10 @@ class SensorSimNode(Node):
                 )
                 announced = True
             if deadline is not None and time.monotonic() > deadline:
-                least = min(p.get_subscription_count() for p in self._det_pubs)
                 self._error = (
                     f'no subscribers after {cfg.wait_timeout:g} s: detection topics have '
                     f'{least} (need {cfg.wait_for_subscribers}), ground truth has '
-                    f'{self._truth_pub.get_subscription_count()} '
-                    f'(need {cfg.wait_for_truth_subscribers})'
+                    f'{truth} (need {cfg.wait_for_truth_subscribers})'
                 )
                 return False
             self._stop.wait(0.05)
@@ -271,12 +300,11 @@ class SensorSimNode(Node):
         if delay > 0:
             self._stop.wait(delay)
 
+    def _reliable_publishers(self) -> list[ReliablePublisher]:
+        return [*self._det_pubs, self._truth_pub, self._episode_pub]
+
     def _wait_acked(self) -> bool:
-        timeout = Duration(seconds=self._config.ack_timeout)
-        ok = True
-        for pub in (*self._det_pubs, self._truth_pub, self._episode_pub):
-            ok = pub.wait_for_all_acked(timeout) and ok
-        return ok
+        return wait_all_acked(self._reliable_publishers(), self._config.ack_timeout)
 
     def _run(self) -> None:
         try:
@@ -286,34 +314,43 @@ class SensorSimNode(Node):
                 self._stop.wait(self._config.start_delay)
             self._anchor = None
             for k, dataset in enumerate(self._datasets):
-                if self._stop.is_set():
+                if self._interrupted() or not self._publish_episode(k, dataset):
                     return
-                self._publish_episode(k, dataset)
-            if not self._wait_acked():
+            if not self._wait_acked() and not self._interrupted():
                 self.get_logger().warning('not every message was acknowledged in time')
+            if self._interrupted():
+                return
+            flow = total_stats(self._reliable_publishers())
             self.get_logger().info(
-                f'published {self._published} detections in {len(self._datasets)} episodes'
+                f'published {self._published} detections in {len(self._datasets)} episodes '
+                f'(waited {flow["waited"]:g} s for subscribers: {flow["window_waits"]} '
+                f'flow-control waits, {flow["retries"]} refused publishes retried)'
             )
+        except PublishTimeout as exc:
+            self._error = str(exc)
         except Exception as exc:  # noqa: BLE001 - reported, and the process exits nonzero
-            if not self._stop.is_set():
+            if not self._interrupted():
                 self._error = f'{type(exc).__name__}: {exc}'
         finally:
             self._done.set()
             if not self._config.keep_running or self._error:
                 rclpy.try_shutdown(context=self.context)
 
-    def _publish_episode(self, k: int, dataset: Dataset) -> None:
+    def _publish_episode(self, k: int, dataset: Dataset) -> bool:
+        """Publish one episode; False when interrupted."""
         layout = dataset.layout
         det = dataset.detections
+        origin = self._origin_ns
         start, end = time_window(dataset)
-        start_ns, end_ns = conv.seconds_to_ns(start), conv.seconds_to_ns(end)
-        self._episode_pub.publish(
+        start_ns, end_ns = conv.seconds_to_ns(start) + origin, conv.seconds_to_ns(end) + origin
+        if not self._episode_pub.publish(
             conv.episode_started_msg(k, dataset.n_targets, start_ns, end_ns, self._now_ns())
-        )
+        ):
+            return False
         order = np.lexsort((det.sensor_index, det.stamp))  # passage time, then position
         sensor_index = det.sensor_index[order].tolist()
         stamps = det.stamp[order].tolist()
-        stamps_ns = conv.seconds_to_ns_array(det.stamp[order]).tolist()
+        stamps_ns = (conv.seconds_to_ns_array(det.stamp[order]) + origin).tolist()
         velocity = det.velocity[order].tolist()
         target = (det.target[order] if det.target is not None else np.full(len(det), -1)).tolist()
         ids = [int(s) for s in layout.sensor_ids]
@@ -322,20 +359,24 @@ class SensorSimNode(Node):
         last_clock = None
         for i in range(len(stamps)):
             if self._stop.is_set():
-                return
+                return False
             self._pace(stamps[i])
             s, t_ns = sensor_index[i], stamps_ns[i]
             if clock_pub is not None and (last_clock is None or t_ns - last_clock >= 10**7):
                 clock_pub.publish(Clock(clock=conv.ns_to_time(max(t_ns, 0))))
                 last_clock = t_ns
-            det_pubs[s].publish(conv.detection_to_msg(ids[s], t_ns, positions[s], velocity[i]))
-            truth_pub.publish(conv.ground_truth_to_msg(k, ids[s], t_ns, target[i], velocity[i]))
+            if not det_pubs[s].publish(
+                conv.detection_to_msg(ids[s], t_ns, positions[s], velocity[i])
+            ) or not truth_pub.publish(
+                conv.ground_truth_to_msg(k, ids[s], t_ns, target[i], velocity[i])
+            ):
+                return False
         self._published += len(stamps)
         counts = np.bincount(det.sensor_index, minlength=layout.n_sensors)
         # No acknowledgement wait here (Fast DDS acknowledges on its heartbeat period, ~3 s):
         # ENDED may overtake detections on other topics; its counts tell the receivers how
         # many to expect. The run ends with a wait for every acknowledgement.
-        self._episode_pub.publish(
+        ended = self._episode_pub.publish(
             conv.episode_ended_msg(
                 k,
                 dataset.n_targets,
@@ -345,19 +386,25 @@ class SensorSimNode(Node):
                 {ids[s]: int(counts[s]) for s in range(layout.n_sensors)},
             )
         )
-        self.get_logger().info(
-            f'episode {k}: {len(stamps)} detections of {dataset.n_targets} targets published'
-        )
+        if ended:
+            self.get_logger().info(
+                f'episode {k}: {len(stamps)} detections of {dataset.n_targets} targets published'
+            )
+        return ended
 
     # --- lifecycle ------------------------------------------------------------------------
     @property
     def error(self) -> str | None:
         return self._error
 
-    def destroy_node(self) -> None:
+    def stop(self) -> None:
+        """Interrupt the publishing thread and wait for it (its waits end within ~0.2 s)."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=5.0)
+
+    def destroy_node(self) -> None:
+        self.stop()
         super().destroy_node()
 
 
@@ -374,6 +421,7 @@ def main(args: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        node.stop()  # first: the thread must not report an interruption as an error
         error = node.error
         node.destroy_node()
         rclpy.try_shutdown()
