@@ -21,6 +21,7 @@ from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
 
+from mlkm_ros.publishing import ReliablePublisher
 from road_sensor_msgs.msg import Detection
 from rosbag_mcap.storage import BagReader, BagWriter
 
@@ -338,8 +339,10 @@ def test_stop_takes_the_whole_backlog_of_a_recorder_that_fell_behind(
     )
     assert spin_until(executor, lambda: pub.get_subscription_count() >= 1, 20.0), recorder.output()
     burst = 12000
+    # No flow-control pauses (a real burst), but a full writer waits instead of failing.
+    sender = ReliablePublisher(pub, rclpy_context, window=burst)
     for i in range(burst):
-        pub.publish(make_detection(i))
+        assert sender.publish(make_detection(i))
     assert pub.wait_for_all_acked()
     assert recorder.stop() == 0, recorder.output()
     assert_clean_output(recorder.output())

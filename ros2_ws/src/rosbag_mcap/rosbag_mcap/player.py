@@ -21,7 +21,6 @@ import time
 from dataclasses import dataclass
 
 import rclpy
-from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -36,6 +35,7 @@ from mlkm_ros.params import (
     declare_string,
     declare_strings,
 )
+from mlkm_ros.publishing import PublishTimeout, ReliablePublisher
 from rosbag_mcap.ros_glue import (
     EXIT_BAD_PARAMETER,
     EXIT_OK,
@@ -48,7 +48,6 @@ from rosbag_mcap.ros_glue import (
 from rosbag_mcap.storage import BagError, BagReader, replay_qos
 
 ACK_TIMEOUT = 10.0  # [s] longest wait for subscribers to acknowledge before going on
-PUBLISH_RETRY_TIMEOUT = 30.0  # [s] keep retrying a publish that the middleware refuses
 
 
 class RefusedError(Exception):
@@ -60,6 +59,7 @@ class _Output:
     topic: str  # as recorded
     name: str  # as published (after remapping)
     publisher: Publisher
+    sender: ReliablePublisher  # publishes with back-pressure (mlkm_ros.publishing)
     reliable: bool
     latched: bool
 
@@ -155,6 +155,7 @@ class BagPlayer(Node):
             raise RefusedError(str(exc)) from None
         for problem in self._reader.problems:
             self.get_logger().warning(problem)
+        self._stop = threading.Event()
         self._outputs: dict[str, _Output] = {}
         for info in self._reader.topics.values():
             if not selection.selects(info.name):
@@ -174,6 +175,7 @@ class BagPlayer(Node):
                 info.name,
                 name,
                 publisher,
+                ReliablePublisher(publisher, self.context, self._stop),
                 qos.reliability == ReliabilityPolicy.RELIABLE,
                 qos.durability == DurabilityPolicy.TRANSIENT_LOCAL,
             )
@@ -191,7 +193,6 @@ class BagPlayer(Node):
             self.create_timer(1.0 / self._clock_rate, self._tick_clock)
         self._bag_time: int | None = None  # bag time [ns] of the latest published message
         self._time_map: tuple[float, int] | None = None  # (monotonic start, bag start ns)
-        self._stop = threading.Event()
         self.played = 0
         self.publish_failures = 0
         self.exit_status = EXIT_OK
@@ -278,30 +279,18 @@ class BagPlayer(Node):
 
     def _publish(self, output: _Output, data: bytes) -> None:
         payload = data if isinstance(data, bytes) else bytes(data)
-        deadline = time.monotonic() + PUBLISH_RETRY_TIMEOUT
-        while True:
-            try:
-                output.publisher.publish(payload)
+        try:
+            if output.sender.publish(payload):
                 self.played += 1
-                return
-            except Exception as exc:  # noqa: BLE001  (rclpy raises RCLError on a full queue)
-                if not rclpy.ok() or self._stop.is_set():
-                    return
-                if time.monotonic() >= deadline:
-                    self.publish_failures += 1
-                    self.get_logger().error(
-                        f'dropped a message on {output.name}: the middleware refused it for '
-                        f'{PUBLISH_RETRY_TIMEOUT:g} s ({exc})'
-                    )
-                    return
-                # A keep_all writer whose subscribers do not keep up: let them catch up.
-                output.publisher.wait_for_all_acked(Duration(seconds=0.5))
+        except PublishTimeout as exc:  # subscribers acknowledged nothing for minutes
+            self.publish_failures += 1
+            self.get_logger().error(f'dropped a message on {output.name}: {exc}')
 
     def _await_acks(self) -> None:
         """Wait until reliable subscribers acknowledged what was published (bounded)."""
         for output in self._outputs.values():
             if output.reliable and rclpy.ok() and not self._stop.is_set():
-                if not output.publisher.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT)):
+                if not output.sender.wait_acked(ACK_TIMEOUT):
                     self.get_logger().warning(
                         f'{output.name}: not every subscriber acknowledged within '
                         f'{ACK_TIMEOUT:g} s'
