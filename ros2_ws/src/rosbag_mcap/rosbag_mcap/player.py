@@ -14,7 +14,6 @@ part was played and a warning names the file and the count played.
 
 from __future__ import annotations
 
-import os
 import sys
 import threading
 import time
@@ -340,7 +339,6 @@ class BagPlayer(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     rclpy.init(args=args)
     node = None
     status = EXIT_OK

@@ -13,7 +13,6 @@ the MCAP gets its summary and index, metadata.yaml is written and a per-topic co
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
 import time
@@ -310,7 +309,6 @@ class BagRecorder(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     # Our own SIGINT/SIGTERM handlers: rclpy's would shut the context down at once, before
     # the messages already delivered could be taken and the bag closed.
     # The constructor already subscribes, so a publisher may see the recorder and stop it
