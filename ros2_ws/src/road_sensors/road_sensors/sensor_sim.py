@@ -185,8 +185,9 @@ class SensorSimConfig:
 class SensorSimNode(Node):
     """Publishes the layout, then episode after episode of simulated detections."""
 
-    def __init__(self) -> None:
-        super().__init__('sensor_sim')
+    def __init__(self, **node_kwargs: Any) -> None:
+        """``node_kwargs`` go to rclpy's Node (context, parameter_overrides, ...)."""
+        super().__init__('sensor_sim', **node_kwargs)
         values = declare_parameters(self, _sim_specs() + _NODE_SPECS, self._on_change)
         self._config: SensorSimConfig = SensorSimConfig.from_values(values)
         self._rtf: float = self._config.real_time_factor
