@@ -79,11 +79,45 @@ if [[ ${MLKM_ENV_NO_OVERLAY:-0} != 1 ]]; then
 fi
 
 # --- network: loopback only unless the user says otherwise -----------------------------------------
-export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
+# The Fast DDS profile binds every socket to 127.0.0.1 (no multicast; discovery by unicast to
+# 127.0.0.1). It needs the SYSTEM_DEFAULT range: with LOCALHOST, rmw_fastrtps adds a UDP
+# transport that binds every interface. The user's choice wins: MLKM_DDS_LOOPBACK=0, a profile
+# file of their own, ROS_STATIC_PEERS or another range keep the plain LOCALHOST default.
+# mlkm_ros/network.py (loopback_env) does the same for the processes the scripts start.
+_mlkm_profile=$MLKM_ROOT/ros2_ws/src/mlkm_ros/mlkm_ros/fastdds_loopback.xml
+_mlkm_range=${ROS_AUTOMATIC_DISCOVERY_RANGE:-}
+_mlkm_ours=0
+[[ ${FASTRTPS_DEFAULT_PROFILES_FILE:-} == "$_mlkm_profile" ]] && _mlkm_ours=1
+if [[ ${MLKM_DDS_LOOPBACK:-1} != 0 && -z ${ROS_STATIC_PEERS:-} && -f $_mlkm_profile ]] \
+  && [[ -z ${FASTRTPS_DEFAULT_PROFILES_FILE:-} || $_mlkm_ours == 1 ]] \
+  && [[ -z ${FASTDDS_DEFAULT_PROFILES_FILE:-} ]] \
+  && [[ -z $_mlkm_range || $_mlkm_range == LOCALHOST \
+    || ($_mlkm_ours == 1 && $_mlkm_range == SYSTEM_DEFAULT) ]]; then
+  export FASTRTPS_DEFAULT_PROFILES_FILE=$_mlkm_profile
+  export ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT
+else
+  if [[ $_mlkm_ours == 1 ]]; then # turned off since an earlier `source env.sh`
+    unset FASTRTPS_DEFAULT_PROFILES_FILE
+    [[ $_mlkm_range == SYSTEM_DEFAULT ]] && unset ROS_AUTOMATIC_DISCOVERY_RANGE
+  fi
+  export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
+fi
+unset _mlkm_profile _mlkm_range _mlkm_ours
 
 # --- `ros2 run` without ros2cli -------------------------------------------------------------------
-if ! type -P ros2 >/dev/null 2>&1; then
+# A real ros2 executable always wins: the shim is not defined when one is on PATH, an earlier
+# shim is removed, and a shim defined before ros2cli came onto PATH hands over to it.
+if type -P ros2 >/dev/null 2>&1; then
+  if [[ $(type -t ros2) == function ]] && declare -f ros2 | grep -q _mlkm_ros2_shim; then
+    unset -f ros2
+  fi
+else
   ros2() {
+    : _mlkm_ros2_shim
+    if type -P ros2 >/dev/null 2>&1; then
+      command ros2 "$@"
+      return
+    fi
     if [[ ${1:-} != run || $# -lt 3 ]]; then
       echo "ros2: the ros2 command-line tools are not installed; env.sh only provides" \
         "'ros2 run <package> <executable> [args...]'" >&2

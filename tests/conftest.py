@@ -10,9 +10,11 @@ Fixtures
 ``ros_domain_id``    -> int in 1..100, unique per test among all concurrently running test
                         sessions on this machine (an exclusive ``flock`` per id, released at
                         teardown or when the process dies).
-``ros_env``          -> dict: a copy of ``os.environ`` with that ``ROS_DOMAIN_ID``,
-                        ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, unbuffered Python output;
-                        give it to any subprocess you start.
+``ros_env``          -> dict: a copy of ``os.environ`` with that ``ROS_DOMAIN_ID``, DDS on
+                        loopback only (mlkm_ros.network.loopback_env: the loopback Fast DDS
+                        profile, or ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` with
+                        ``MLKM_DDS_LOOPBACK=0``), unbuffered Python output; give it to any
+                        subprocess you start.
 ``ros_process``      -> factory ``ros_process(package, executable, *args, env=None,
                         **popen_kwargs) -> RosProcess``: starts
                         ``ros2_ws/install/<package>/lib/<package>/<executable>`` in its own
@@ -91,12 +93,16 @@ def ros_domain_id() -> Iterator[int]:
 
 @pytest.fixture
 def ros_env(ros_domain_id: int) -> dict[str, str]:
-    """Environment for subprocesses: own domain, loopback-only discovery, the overlay."""
+    """Environment for subprocesses: own domain, DDS on loopback only, the overlay."""
+    from mlkm_ros.network import loopback_active, loopback_env  # after the env.sh re-exec
+
     env = dict(os.environ)
     env['ROS_DOMAIN_ID'] = str(ros_domain_id)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    if not loopback_active(env):
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy; conflicts with the above
     env.pop('ROS_STATIC_PEERS', None)
+    loopback_env(env)  # the loopback-only Fast DDS profile, unless MLKM_DDS_LOOPBACK=0
     env['PYTHONUNBUFFERED'] = '1'
     return env
 
@@ -201,8 +207,13 @@ def rclpy_context(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch):
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
 
+    from mlkm_ros.network import loopback_env
+
     # The RMW reads these when the context is initialised.
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    net = loopback_env({**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'})
+    for name in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'FASTRTPS_DEFAULT_PROFILES_FILE'):
+        if name in net:
+            monkeypatch.setenv(name, net[name])
     monkeypatch.setenv('ROS_DOMAIN_ID', str(ros_domain_id))
     monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
     ctx = Context()

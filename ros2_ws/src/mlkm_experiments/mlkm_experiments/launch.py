@@ -70,10 +70,13 @@ def domain() -> Iterator[int]:
 
 
 def graph_env(domain_id: int) -> dict[str, str]:
-    """os.environ with the domain, loopback-only discovery (unless set) and unbuffered I/O."""
+    """os.environ with the domain, DDS on loopback only (unless the user chose otherwise, see
+    mlkm_ros.network.loopback_env) and unbuffered I/O."""
+    from mlkm_ros.network import loopback_env
+
     env = dict(os.environ)
     env['ROS_DOMAIN_ID'] = str(domain_id)
-    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    loopback_env(env)
     env['PYTHONUNBUFFERED'] = '1'
     return env
 
