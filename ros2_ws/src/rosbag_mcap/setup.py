@@ -17,12 +17,13 @@ setup(
     zip_safe=True,
     maintainer='mlkm team',
     maintainer_email='dev@example.com',
-    description='Record and replay rosbag2-compatible MCAP bags (bag_recorder, bag_player).',
+    description='Record, replay and reindex rosbag2-compatible MCAP bags.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'bag_recorder = rosbag_mcap.recorder:main',
             'bag_player = rosbag_mcap.player:main',
+            'bag_reindex = rosbag_mcap.reindex:main',
         ],
     },
 )
