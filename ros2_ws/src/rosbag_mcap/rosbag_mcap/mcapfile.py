@@ -37,7 +37,7 @@ from mcap.records import (
     Statistics,
     SummaryOffset,
 )
-from mcap.stream_reader import breakup_chunk
+from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 
 MAGIC = b'\x89MCAP0\r\n'
 _DATA_OPCODES = {
@@ -271,6 +271,22 @@ def indexed_message_count(stream: BinaryIO, index: ChunkIndex) -> int | None:
     return total if index.message_index_offsets else None
 
 
+def _message_indexes(stream: BinaryIO, index: ChunkIndex) -> list[MessageIndex]:
+    """The message index records of a chunk, rebuilt from its records."""
+    chunk, _ = _decode_chunk(read_record(stream, index.chunk_start_offset, Opcode.CHUNK))
+    data_stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+    entries: dict[int, list[tuple[int, int]]] = {}
+    while data_stream.count < size:
+        offset = data_stream.count
+        opcode = data_stream.read1()
+        length = data_stream.read8()
+        body = data_stream.read(length)
+        if opcode == Opcode.MESSAGE:
+            channel_id, _, log_time = struct.unpack_from('<HIQ', body)
+            entries.setdefault(channel_id, []).append((log_time, offset))
+    return [MessageIndex(cid, sorted(records)) for cid, records in sorted(entries.items())]
+
+
 def finish(result: ScanResult) -> None:
     """Make ``result.path`` a complete MCAP: cut after the last intact record, then append
     DataEnd, a summary indexing the intact chunks only, and the footer.
@@ -280,6 +296,18 @@ def finish(result: ScanResult) -> None:
     of the index, so indexed readers skip them.
     """
     builder = RecordBuilder()
+    last = result.chunks[-1] if result.chunks else None
+    if (
+        last is not None
+        and not last.message_index_offsets
+        and last.chunk_start_offset + last.chunk_length == result.intact_end
+    ):
+        # The cut took the last chunk's message indexes (some readers need them): rebuild.
+        with open(result.path, 'rb') as stream:
+            for index in _message_indexes(stream, last):
+                last.message_index_offsets[index.channel_id] = result.intact_end + builder.count
+                index.write(builder)
+        last.message_index_length = builder.count
     DataEnd(0).write(builder)
     summary_start = result.intact_end + builder.count
     summary = RecordBuilder()

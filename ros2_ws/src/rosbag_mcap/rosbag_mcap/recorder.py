@@ -9,6 +9,10 @@ received) with history keep_all, reliable / transient_local when every publisher
 
 SIGINT and SIGTERM stop the recording cleanly: the messages already delivered are drained,
 the MCAP gets its summary and index, metadata.yaml is written and a per-topic count logged.
+
+A failed write (full disk, I/O error) ends the recording at once: the bag keeps every message
+that reached the disk (finished MCAP and metadata.yaml, see storage.BagWriter), the error is
+logged and the exit status is 4.
 """
 
 from __future__ import annotations
@@ -38,12 +42,13 @@ from rosbag_mcap.ros_glue import (
     EXIT_BAD_PARAMETER,
     EXIT_OK,
     EXIT_REFUSED,
+    EXIT_WRITE_FAILED,
     TopicSelection,
     import_message_type,
     request_profile,
     spec_from_profile,
 )
-from rosbag_mcap.storage import BagError, BagWriter, default_bag_name
+from rosbag_mcap.storage import BagError, BagWriteError, BagWriter, default_bag_name
 
 
 class BagRecorder(Node):
@@ -149,6 +154,7 @@ class BagRecorder(Node):
         self._recording: dict[str, Subscription] = {}
         self._skipped: set[str] = set()
         self._stop_signal: int | None = None
+        self.failed = False
         self.finished = Future()
         self._started = time.monotonic()
         self._discover()
@@ -156,9 +162,7 @@ class BagRecorder(Node):
         # Signal handlers only set a flag; this timer turns it into the end of spinning.
         self._stop_timer = self.create_timer(0.1, self._check_stop)
         self._flush_timer = (
-            self.create_timer(self._flush_period, self._writer.flush)
-            if self._flush_period > 0
-            else None
+            self.create_timer(self._flush_period, self._flush) if self._flush_period > 0 else None
         )
         self.get_logger().info(
             f'recording to {self._output.resolve()} ({self._describe_selection()})'
@@ -222,7 +226,12 @@ class BagRecorder(Node):
         except Exception as exc:  # noqa: BLE001  (rclpy raises several types; report, go on)
             self._skip(topic, f'cannot subscribe: {exc}')
             return
-        self._writer.add_topic(topic, type_name, definition, offered, type_hash)
+        try:
+            self._writer.add_topic(topic, type_name, definition, offered, type_hash)
+        except BagWriteError as exc:
+            self.destroy_subscription(subscription)
+            self._write_failed(exc)
+            return
         self._recording[topic] = subscription
         self.get_logger().info(
             f'recording {topic} [{type_name}] {qos.reliability.name.lower()}, '
@@ -230,20 +239,41 @@ class BagRecorder(Node):
         )
 
     def _make_callback(self, topic: str):
-        write = self._writer.write
+        writer = self._writer
         clock = self.get_clock()
         use_sim_time = self._use_sim_time
 
         def on_message(data: bytes, info: dict) -> None:
+            if writer.failure is not None:
+                return  # the recording has ended; spinning stops at once
             received = (
                 clock.now().nanoseconds
                 if use_sim_time
                 else (info.get('received_timestamp') or time.time_ns())
             )
             sent = info.get('source_timestamp') or received
-            write(topic, data, received, sent, info.get('publication_sequence_number') or 0)
+            try:
+                writer.write(
+                    topic, data, received, sent, info.get('publication_sequence_number') or 0
+                )
+            except BagWriteError as exc:
+                self._write_failed(exc)
 
         return on_message
+
+    def _flush(self) -> None:
+        try:
+            self._writer.flush()
+        except BagWriteError as exc:
+            self._write_failed(exc)
+
+    def _write_failed(self, exc: BagWriteError) -> None:
+        """Stop recording: nothing more can be written (the bag is finished in close())."""
+        if not self.failed:
+            self.failed = True
+            self.get_logger().error(f'recording failed: {exc}; stopping')
+        if not self.finished.done():
+            self.finished.set_result('write failed')
 
     # -- stopping
 
@@ -269,7 +299,7 @@ class BagRecorder(Node):
         for timer in (self._discovery_timer, self._stop_timer, self._flush_timer):
             if timer is not None:
                 timer.cancel()
-        if not rclpy.ok():
+        if not rclpy.ok() or self.failed:
             return
         first_signal = self._stop_signal
         self._stop_signal = None
@@ -299,9 +329,26 @@ class BagRecorder(Node):
         """Finish the bag and log where it is and how many messages each topic has."""
         if self._writer.closed:
             return
-        info = self._writer.close()
-        counts = {t.name: t.message_count for t in self._writer.topics.values()}
+        try:
+            info = self._writer.close()
+        except BagWriteError as exc:
+            self.failed = True
+            self.get_logger().error(str(exc))
+            return
+        counts = {
+            t['topic_metadata']['name']: t['message_count']
+            for t in info['topics_with_message_count']
+        }
         lines = [f'  {name}: {count}' for name, count in sorted(counts.items())]
+        if self._writer.failure is not None:
+            self.failed = True
+            self.get_logger().error(
+                f'recording failed: {self._writer.failure}; the bag keeps the '
+                f'{info["message_count"]} messages written before the failure (finished, with '
+                f'metadata.yaml): {self._output.resolve()}'
+                + ('\n' + '\n'.join(lines) if lines else '')
+            )
+            return
         self.get_logger().info(
             f'bag written: {self._output.resolve()} ({info["message_count"]} messages, '
             f'{len(counts)} topics)' + ('\n' + '\n'.join(lines) if lines else '')
@@ -338,9 +385,6 @@ def main(args: list[str] | None = None) -> int:
         rclpy.spin_until_future_complete(node, node.finished)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except OSError as exc:  # e.g. the disk is full: say so, keep what can be kept
-        print(f'bag_recorder: recording failed: {exc}', file=sys.stderr)
-        status = EXIT_REFUSED
     finally:
         try:
             node.drain()
@@ -348,6 +392,8 @@ def main(args: list[str] | None = None) -> int:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
             signal.signal(signal.SIGTERM, signal.SIG_IGN)
             node.close()
+            if node.failed:
+                status = EXIT_WRITE_FAILED
             node.destroy_node()
             rclpy.try_shutdown()
     return status

@@ -141,3 +141,4 @@ EXIT_OK = 0
 EXIT_REFUSED = 1  # the bag (or output) cannot be used; nothing played / recorded
 EXIT_BAD_PARAMETER = 2  # a parameter value is invalid
 EXIT_PARTIAL = 3  # bag_player: the bag is damaged; what was readable was played
+EXIT_WRITE_FAILED = 4  # bag_recorder: writing failed (disk full); the bag keeps what was written

@@ -32,6 +32,8 @@ SCHEMA_ENCODING = 'ros2msg'
 MESSAGE_ENCODING = 'cdr'
 LIBRARY = 'rosbag_mcap/0.1.0 (python mcap writer)'
 DEFAULT_CHUNK_SIZE = 768 * 1024  # bytes, the mcap C++ writer's default (rosbag2's)
+RESERVE_FILE = '.bag_recorder_reserve'
+RESERVE_BYTES = 256 * 1024  # disk space held back to finish a bag when the disk fills up
 
 INFINITE_NS = 9223372036854775807  # RMW_DURATION_INFINITE = {9223372036 s, 854775807 ns}
 _FOXY_INFINITES = {(0x7FFFFFFF, 0xFFFFFFFF), (0x7FFFFFFF, 0x7FFFFFFF)}
@@ -52,6 +54,10 @@ _LIVELINESS = (
 
 class BagError(Exception):
     """A bag cannot be opened or read; the message names the file and the reason."""
+
+
+class BagWriteError(BagError):
+    """Writing the bag failed (e.g. the disk is full); nothing more can be written to it."""
 
 
 # --------------------------------------------------------------------------- QoS text
@@ -282,6 +288,12 @@ class BagWriter:
     ``close()`` finishes the MCAP (summary, indexes, footer) and writes metadata.yaml; it is
     idempotent. ``flush()`` ends the current chunk so that a recording killed without a clean
     close keeps everything written up to the last flush readable.
+
+    A failed write (a full disk, an I/O error) raises :class:`BagWriteError` and ends the
+    recording: :attr:`failure` says why and later writes raise at once. ``close()`` then keeps
+    what reached the disk: it cuts the MCAP after its last intact record, finishes it (summary,
+    footer) and writes metadata.yaml, in the ``reserve`` bytes held back in a placeholder file
+    from the start. It raises BagWriteError only if even that is impossible.
     """
 
     def __init__(
@@ -291,6 +303,7 @@ class BagWriter:
         compression: str = 'zstd',
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         custom_data: dict[str, str] | None = None,
+        reserve: int = RESERVE_BYTES,
     ) -> None:
         self.directory = Path(directory)
         if self.directory.exists() and (
@@ -309,6 +322,18 @@ class BagWriter:
         self.file_name = f'{self.directory.name}_0.mcap'
         self.path = self.directory / self.file_name
         self._custom_data = custom_data
+        self._reserve = self.directory / RESERVE_FILE
+        self.failure: str | None = None
+        self._closed_info: dict | None = None
+        try:
+            with open(self._reserve, 'wb') as placeholder:
+                placeholder.write(bytes(reserve))
+        except OSError as exc:
+            self._reserve.unlink(missing_ok=True)
+            raise BagError(
+                f'{self.directory}: cannot reserve {reserve} bytes to finish the bag: '
+                f'{exc.strerror or exc}'
+            ) from None
         self._stream = open(self.path, 'wb')  # noqa: SIM115 (closed in close())
         self._mcap = Writer(
             self._stream, chunk_size=chunk_size, compression=compressions[compression]
@@ -339,6 +364,20 @@ class BagWriter:
         """Register a topic (one channel); its schema is shared by all topics of the type."""
         if name in self._topics:
             raise BagError(f'{self.path}: topic {name} added twice')
+        self._check()
+        try:
+            self._add_topic(name, type_name, definition, offered_qos, type_hash)
+        except OSError as exc:
+            raise self._fail(exc) from None
+
+    def _add_topic(
+        self,
+        name: str,
+        type_name: str,
+        definition: str,
+        offered_qos: Sequence[QosSpec],
+        type_hash: str,
+    ) -> None:
         schema_id = self._schemas.get(type_name)
         if schema_id is None:
             schema_id = self._mcap.register_schema(
@@ -369,13 +408,17 @@ class BagWriter:
     ) -> None:
         """Append one serialized message (``log_time``/``publish_time`` in ns)."""
         entry = self._topics[topic]
-        self._mcap.add_message(
-            channel_id=entry.channel_id,
-            log_time=log_time,
-            data=data,
-            publish_time=log_time if publish_time is None else publish_time,
-            sequence=sequence & 0xFFFFFFFF,
-        )
+        self._check()
+        try:
+            self._mcap.add_message(
+                channel_id=entry.channel_id,
+                log_time=log_time,
+                data=data,
+                publish_time=log_time if publish_time is None else publish_time,
+                sequence=sequence & 0xFFFFFFFF,
+            )
+        except OSError as exc:
+            raise self._fail(exc) from None
         entry.info.message_count += 1
         self.message_count += 1
         if self._first_ns is None or log_time < self._first_ns:
@@ -384,8 +427,24 @@ class BagWriter:
             self._last_ns = log_time
 
     def flush(self) -> None:
-        if not self.closed and hasattr(self._mcap, 'flush'):
+        """End the current chunk and hand it to the operating system."""
+        if self.closed or self.failure is not None:
+            return
+        try:
             self._mcap.flush()
+        except OSError as exc:
+            raise self._fail(exc) from None
+
+    def _check(self) -> None:
+        if self.failure is not None:
+            raise BagWriteError(self.failure)
+        if self.closed:
+            raise BagWriteError(f'{self.path}: the bag is closed')
+
+    def _fail(self, exc: OSError) -> BagWriteError:
+        if self.failure is None:
+            self.failure = f'{self.path}: writing failed: {exc.strerror or exc}'
+        return BagWriteError(self.failure)
 
     def metadata(self) -> dict:
         start = self._first_ns or 0
@@ -404,24 +463,60 @@ class BagWriter:
         )
 
     def close(self) -> dict:
-        """Finish the MCAP and write metadata.yaml; returns the metadata mapping."""
+        """Finish the MCAP and write metadata.yaml; returns the metadata mapping.
+
+        After a write failure the metadata describes what was kept (see the class).
+        """
         info = self.metadata()
         if self.closed:
-            return info
+            return self._closed_info or info
         self.closed = True
+        if self.failure is None:
+            try:
+                self._reserve.unlink(missing_ok=True)  # room for the summary
+                # As rosbag2_storage_mcap: the BagMetadata mapping itself, without the root key.
+                serialized = yaml.safe_dump(
+                    info, sort_keys=False, default_flow_style=False, allow_unicode=True, width=1000
+                )
+                self._mcap.add_metadata('rosbag2', {'serialized_metadata': serialized})
+                self._mcap.finish()
+                self._stream.close()
+                tmp = self.directory / (METADATA_FILE + '.tmp')
+                tmp.write_text(dump_metadata(info), encoding='utf-8')
+                tmp.replace(self.directory / METADATA_FILE)
+                self._closed_info = info
+                return info
+            except OSError as exc:
+                self._fail(exc)
+        self._closed_info = self._keep_written_part()
+        return self._closed_info
+
+    def _keep_written_part(self) -> dict:
+        """After a failed write: make what reached the disk a finished, readable bag."""
         try:
-            # As rosbag2_storage_mcap: the BagMetadata mapping itself, without the root key.
-            serialized = yaml.safe_dump(
-                info, sort_keys=False, default_flow_style=False, allow_unicode=True, width=1000
-            )
-            self._mcap.add_metadata('rosbag2', {'serialized_metadata': serialized})
-            self._mcap.finish()
-        finally:
-            self._stream.close()
-        tmp = self.directory / (METADATA_FILE + '.tmp')
-        tmp.write_text(dump_metadata(info), encoding='utf-8')
-        tmp.replace(self.directory / METADATA_FILE)
-        return info
+            self._stream.close()  # flushing the rest fails again on a full disk; it is closed
+        except OSError:
+            pass
+        self._reserve.unlink(missing_ok=True)
+        (self.directory / (METADATA_FILE + '.tmp')).unlink(missing_ok=True)
+        from rosbag_mcap.reindex import repair_file, write_metadata  # needs the reader
+
+        try:
+            if self.path.stat().st_size < 16:  # not even the MCAP header reached the disk
+                self._write_empty_mcap()
+            result, _ = repair_file(self.path)
+            return write_metadata(self.directory, [result])
+        except (BagError, OSError) as exc:
+            raise BagWriteError(
+                f'{self.failure}; the bag could not be finished either ({exc}); free some '
+                f'space, then run: bag_reindex {self.directory}'
+            ) from None
+
+    def _write_empty_mcap(self) -> None:
+        with open(self.path, 'wb') as stream:
+            writer = Writer(stream)
+            writer.start(profile=PROFILE, library=LIBRARY)
+            writer.finish()
 
     def __enter__(self) -> BagWriter:
         return self
