@@ -7,7 +7,13 @@ scores or diagnostics) with ``rosbag_mcap bag_player`` into a new ``association_
 $ROS_DOMAIN_ID), and prints the accuracy of each episode and the mean. When the bag also
 holds the scores of the run that recorded it, they are compared: a replay reproduces them.
 
+A damaged bag (truncated file, corrupt chunks) is replayed as far as it is readable, with a
+warning naming the damage; its accuracy is not compared with the recorded run (messages are
+missing) and the exit status is 3.
+
 Usage: python scripts/replay.py <bag dir or .mcap> [--method M] [--rate R]
+Exit status: 0 replayed; 1 failed (unreadable bag, no complete episode, a node failed or
+timed out); 2 bad arguments; 3 the bag is damaged: only its readable part was replayed.
 """
 
 from __future__ import annotations
@@ -20,12 +26,15 @@ from pathlib import Path
 
 from mlkm_experiments.launch import Graph, ScoreCollector, domain, format_scores, start_association
 
+EXIT_DAMAGED = 3  # as bag_player: the readable part of a damaged bag was replayed
+
 #: Topics replayed: the sensors' side of the graph only.
 PLAY_REGEX = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detections)$'
 
 
-def recorded_episodes(bag: Path) -> tuple[int, dict[int, float]]:
-    """(number of ENDED episodes, {episode: recorded accuracy}) read from the bag."""
+def recorded_episodes(bag: Path) -> tuple[int, dict[int, float], list[str]]:
+    """(number of ENDED episodes, {episode: recorded accuracy}, damage found) read from the
+    bag; the damage list is empty for an intact bag."""
     from rclpy.serialization import deserialize_message
 
     from road_sensor_msgs.msg import EpisodeInfo
@@ -42,7 +51,17 @@ def recorded_episodes(bag: Path) -> tuple[int, dict[int, float]]:
         elif message.topic == '/mlkm/score':
             score = _recorded_score(message.data)
             recorded[score.episode_id] = score.accuracy
-    return len(ended), recorded
+    return len(ended), recorded, bag_damage(reader)
+
+
+def bag_damage(reader) -> list[str]:
+    """What the reader found missing or unreadable (read after iterating its messages)."""
+    damage = list(reader.problems) if reader.damaged else []
+    expected = reader.expected_message_count
+    readable = reader.readable_message_count
+    if expected is not None and readable < expected:
+        damage.append(f'{readable} of the {expected} recorded messages are readable')
+    return damage
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -66,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f'replay: {bag} does not exist', file=sys.stderr)
         return 2
     try:
-        episodes, recorded = recorded_episodes(bag)
+        episodes, recorded, damage = recorded_episodes(bag)
     except Exception as exc:  # noqa: BLE001 - any unreadable bag: say why and stop
         print(f'replay: cannot read {bag}: {exc}', file=sys.stderr)
         return 1
@@ -76,6 +95,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 1
     method = args.method or _recorded_method(bag) or 'mlkm'
+    if damage:
+        print(
+            f'replay: WARNING: {bag} is damaged; replaying only its readable part:\n  '
+            + '\n  '.join(damage),
+            file=sys.stderr,
+        )
     log_dir = Path(tempfile.mkdtemp(prefix='mlkm_replay_'))
     t0 = time.monotonic()
     with domain() as domain_id:
@@ -123,6 +148,16 @@ def main(argv: list[str] | None = None) -> int:
         codes = graph.stop_all()
         collector.close()
     print(format_scores(collector.scores, f'\nreplayed association ({method}):'))
+    if damage:
+        print(
+            'recorded run: not compared, the bag is damaged (messages are missing, so the '
+            'accuracy can differ from the recorded run)'
+        )
+        print(
+            f'replay: done in {time.monotonic() - t0:.1f} s with a DAMAGED bag '
+            f'(exit {EXIT_DAMAGED}); exit codes {codes}'
+        )
+        return EXIT_DAMAGED
     if recorded:
         same = all(
             abs(collector.scores[e].accuracy - a) < 1e-12

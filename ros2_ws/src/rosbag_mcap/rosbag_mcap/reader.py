@@ -101,6 +101,7 @@ class BagReader:
         self.metadata: dict | None = None
         self.skipped_chunks = 0
         self.skipped_messages = 0
+        self._skipped_indexed = 0  # lost messages still in the summary's counts
         self._reported: set[tuple[Path, int]] = set()
         files = self._resolve_files()
         self._files = [self._index_file(f) for f in files]
@@ -220,12 +221,16 @@ class BagReader:
             result.start_time,
         )
 
-    def _skip(self, path: Path, offset: int, reason: str, messages: int | None) -> None:
+    def _skip(
+        self, path: Path, offset: int, reason: str, messages: int | None, indexed: bool = False
+    ) -> None:
         if (path, offset) in self._reported:
             return
         self._reported.add((path, offset))
         self.skipped_chunks += 1
         self.skipped_messages += messages or 0
+        if indexed:
+            self._skipped_indexed += messages or 0
         lost = f'{messages} messages' if messages is not None else 'an unknown number of messages'
         self.problems.append(
             f'{path}: corrupt chunk at byte {offset} ({reason}): skipped it with {lost}; '
@@ -292,7 +297,7 @@ class BagReader:
     def readable_message_count(self) -> int:
         """Messages of the readable chunks (a chunk found damaged while reading is excluded
         once it was met)."""
-        return sum(t.message_count for t in self.topics.values())
+        return sum(t.message_count for t in self.topics.values()) - self._skipped_indexed
 
     @property
     def start_time(self) -> int | None:
@@ -355,7 +360,8 @@ class BagReader:
                     messages = mcapfile.chunk_messages(stream, chunk)
                 except Exception as exc:  # noqa: BLE001 (damaged data fails in many ways)
                     lost = mcapfile.indexed_message_count(stream, chunk)
-                    self._skip(path, chunk.chunk_start_offset, mcapfile.describe(exc), lost)
+                    reason = mcapfile.describe(exc)
+                    self._skip(path, chunk.chunk_start_offset, reason, lost, indexed=True)
                     continue
                 for n, message in enumerate(messages):
                     if keep(message):
