@@ -1,4 +1,4 @@
-"""Issue 4 associators (``assignment``, ``mlkm_robust``, ``multiframe``) and their machinery.
+"""The tracking associators (``assignment``, ``mlkm_robust``, ``multiframe``) and their machinery.
 
 Hand-made cases with a known answer; dummy handling (a miss, a false alarm); batch equals
 incremental; the multi-sensor evidence at work. ROS-free, fast.
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from mlkm_core.associators import available_methods, make_associator
+from mlkm_core.associators.likelihood import sequence_nll
 from mlkm_core.associators.linking import gate_pairs, match_sparse, relabel
-from mlkm_core.associators.tracker import MotionParams, sequence_nll
+from mlkm_core.associators.motion import MotionParams
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout

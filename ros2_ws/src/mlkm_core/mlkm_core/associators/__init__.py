@@ -1,14 +1,26 @@
-"""Built-in associators. Importing this package registers every method by name."""
+"""Built-in associators. Importing this package registers every method by name.
 
-import mlkm_core.associators.assignment  # noqa: F401  (BEYOND: issue 4)
-import mlkm_core.associators.mlkm_robust  # noqa: F401  (BEYOND: issue 4)
-import mlkm_core.associators.multiframe  # noqa: F401  (BEYOND: issue 4)
-from mlkm_core.associators import kmeans, mlkm  # noqa: F401,E402  (CORE: paper methods)
+The paper's methods: ``kmeans`` (K-means and K-means++ on raw or preprocessed data) and
+``mlkm`` (Multi-Layer K-means, with and without error correction). Stronger associators:
+``mlkm_robust`` (MLKM with optimal, clutter-tolerant correction and matching), ``assignment``
+(sequential sensor-to-sensor assignment) and ``multiframe`` (Kalman tracks and a multi-frame
+local search).
+"""
+
+from mlkm_core.associators import (  # noqa: F401  (registers the methods)
+    assignment,
+    kmeans,
+    mlkm,
+    mlkm_robust,
+    multiframe,
+)
 from mlkm_core.associators.base import (  # noqa: F401
     Associator,
     AssociatorConfig,
+    DegradedResultWarning,
     Session,
     available_methods,
+    canonical_order,
     make_associator,
     register,
 )

@@ -8,14 +8,15 @@ time-gated candidate graph) with dummy rows and columns:
 
 * cost of a link = Gaussian NLL of the travel-time residual predicted from the speeds at both
   ends, e_t = t2 - t1 - dx (1/v1 + 1/v2) / 2, and of the slowness change, each divided by its
-  expected variance (derived from the simulator's model, see ``tracker``); gate 6 sigma;
+  expected variance (derived from the simulator's model, see ``motion``); gate 6 sigma;
 * a track left unmatched is a miss: it pays -log p_miss and is carried forward to the next
   sensors (at most 3 in a row) with the larger variance of the longer gap;
 * a detection left unmatched starts a new track (cost -log of the false-alarm density);
 * a track that ends with a single detection is a false alarm: UNASSIGNED (-1).
 
 The variances are not given to the method: they are estimated from the data (pass 1 with
-generic values, then the moments and the maximum likelihood of its tracks, ``tracker``), the
+generic values, then the moments and the maximum likelihood of its tracks,
+``calibration``), the
 same estimates ``multiframe`` uses, so the two differ only in the evidence they use.
 """
 
@@ -23,9 +24,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mlkm_core.associators.base import Associator, register
-from mlkm_core.associators.linking import relabel
-from mlkm_core.associators.tracker import canonical, estimate_params, link
+from mlkm_core.associators.base import Associator, canonical_order, register
+from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.linking import link, relabel
 from mlkm_core.types import Detections, Layout
 
 
@@ -34,10 +35,10 @@ class AssignmentAssociator(Associator):
     name = 'assignment'
 
     def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
-        order = canonical(detections)
+        order = canonical_order(detections)
         d = detections.subset(order)
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d):
-            params, _ = estimate_params(layout, d)
+            params = estimate_params(layout, d)
             out[order] = relabel(link(layout, d, params, 'pairwise'))
         return out

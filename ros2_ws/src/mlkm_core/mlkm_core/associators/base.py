@@ -27,6 +27,27 @@ class AssociatorConfig:
 
     segment_size: int = 5  # K, sensors per segment (MLKM layer 1 and the live buffering)
     seed: int = 0  # random_state of K-means / K-means++ / the DNN
+    # multiframe: most candidate exchanges its local search scores per starting point (a
+    # deterministic work budget; the search keeps the best labelling found within it)
+    search_budget: int = 2_000_000
+
+    def __post_init__(self) -> None:
+        if self.search_budget < 0:
+            raise ValueError(f'search_budget must be >= 0, got {self.search_budget}')
+
+
+class DegradedResultWarning(UserWarning):
+    """An associator returned a valid but weaker result (a fallback or a cut-short search)."""
+
+
+def canonical_order(detections: Detections) -> np.ndarray:
+    """Permutation sorting detections by (sensor_index, stamp, velocity).
+
+    Every associator reads detections in this order, so its result does not depend on the
+    order in which they were given (batch and incremental feed the same detections in
+    different orders).
+    """
+    return np.lexsort((detections.velocity, detections.stamp, detections.sensor_index))
 
 
 class Session:

@@ -20,18 +20,9 @@ from typing import ClassVar
 import numpy as np
 from sklearn.cluster import KMeans
 
-from mlkm_core.associators.base import Associator, register
+from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.preprocess import preprocess
 from mlkm_core.types import Detections, Layout
-
-
-def canonical_order(detections: Detections) -> np.ndarray:
-    """Permutation sorting detections by (sensor_index, stamp, velocity).
-
-    Associators cluster in this order, so their result does not depend on the order in which
-    detections were given (batch and incremental feed the same detections in different orders).
-    """
-    return np.lexsort((detections.velocity, detections.stamp, detections.sensor_index))
 
 
 def kmeans_labels(

@@ -1,4 +1,4 @@
-"""Shared machinery of the assignment-based associators (issue 4).
+"""Sensor-to-sensor linking: the machinery of the assignment-based associators.
 
 * ``match_sparse``: optimal one-to-one matching of rows (tracks) to columns (detections) with
   dummies for "row unmatched" (a miss) and "column unmatched" (a false alarm or a new track).
@@ -11,6 +11,13 @@
 * ``gate_pairs``: candidate pairs from sorted 1-D windows (predicted passage time +- k sigma),
   O(n log n + pairs) instead of a dense n x m matrix.
 * ``by_sensor``: detections grouped per sensor, sorted by stamp.
+* ``link``: the forward pass. It walks the sensors in road order. At each sensor the active
+  tracks (last seen at most ``max_skip`` sensors back) are gated in predicted passage time
+  against the detections (the motion model of ``motion``), and the gated pairs are solved by
+  ``match_sparse``: a track left unmatched is a miss (cost -log p_miss per skipped sensor,
+  carried forward with the growing variance of the longer gap), a detection left unmatched
+  starts a new track (cost -log kappa, kappa = clutter density).
+* ``relabel``: a track of a single detection is a false alarm and is labelled UNASSIGNED.
 """
 
 from __future__ import annotations
@@ -20,12 +27,14 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from mlkm_core.types import Detections
+from mlkm_core.associators.base import canonical_order
+from mlkm_core.associators.motion import MotionParams, make_model
+from mlkm_core.types import Detections, Layout
 
 
 def by_sensor(detections: Detections, n_sensors: int) -> list[np.ndarray]:
     """Indices of the detections of each sensor, sorted by (stamp, velocity)."""
-    order = np.lexsort((detections.velocity, detections.stamp, detections.sensor_index))
+    order = canonical_order(detections)
     bounds = np.searchsorted(detections.sensor_index[order], np.arange(n_sensors + 1))
     return [order[bounds[s] : bounds[s + 1]] for s in range(n_sensors)]
 
@@ -101,3 +110,50 @@ def relabel(labels: np.ndarray, min_size: int = 2) -> np.ndarray:
     tmp[big] = new_ids[inverse[big]]
     out[valid] = tmp
     return out
+
+
+def link(
+    layout: Layout, detections: Detections, params: MotionParams, model: str = 'pairwise'
+) -> np.ndarray:
+    """Sequential sensor-to-sensor assignment; returns raw track ids (no singleton pruning).
+
+    ``model`` names the motion model (``motion.make_model``) that predicts and scores tracks.
+    """
+    n_s = layout.n_sensors
+    per_sensor = by_sensor(detections, n_s)
+    labels = np.full(len(detections), -1, dtype=np.int64)
+    m = make_model(model, params)
+    last_sensor = np.zeros(0, dtype=np.int64)
+    n_tracks = 0
+    u_all = 1.0 / detections.velocity
+    for s in range(n_s):
+        idx = per_sensor[s]
+        x = float(layout.positions[s])
+        t, u = detections.stamp[idx], u_all[idx]
+        active = np.flatnonzero(last_sensor >= s - 1 - params.max_skip)
+        matched_d = np.zeros(0, np.int64)
+        if active.size and idx.size:
+            pred = m.predict(active, x)
+            centre, half = m.gate_window(pred)
+            r, c = gate_pairs(centre, half, t)
+            if r.size:
+                nll, d2 = m.cost(pred.take(r), t[c], u[c])
+                skipped = s - 1 - last_sensor[active[r]]
+                w = nll + skipped * params.miss_cost - params.miss_cost - params.new_cost
+                w = np.where(d2 <= params.gate, w, 0.0)
+                mr, mc = match_sparse(r, c, w, active.size, idx.size)
+                if mr.size:
+                    tr = active[mr]
+                    m.update(pred.take(mr), t[mc], u[mc])
+                    last_sensor[tr] = s
+                    labels[idx[mc]] = tr
+                    matched_d = mc
+        new = np.setdiff1d(np.arange(idx.size), matched_d)
+        if new.size:
+            ids = np.arange(n_tracks, n_tracks + new.size)
+            n_tracks += new.size
+            m.grow(new.size)
+            last_sensor = np.concatenate([last_sensor, np.full(new.size, s)])
+            m.start(ids, x, t[new], u[new])
+            labels[idx[new]] = ids
+    return labels

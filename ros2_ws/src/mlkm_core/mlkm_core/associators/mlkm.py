@@ -61,8 +61,8 @@ Every place where the paper is ambiguous, and the reading implemented here:
    Track j is the group seeded by the first segment's cluster j (clusters are numbered by
    centroid time), so track ids are 0..c-1 and never change meaning when segments are added.
    As in the paper, this is not a one-to-one matching: two clusters of one segment may land
-   in one track and a track may miss a segment. We keep that (issue 4's robust variant
-   fixes it).
+   in one track and a track may miss a segment. We keep that (``mlkm_robust`` matches
+   one-to-one instead).
 10. Incremental use (the live node): a new completed segment runs Layers 1 and 2 on its own
     detections only (cached) and Layer 3 is re-run on the centroids of that segment and of all
     the segments before it. Batch ``associate`` splits the detections into the same segments
@@ -81,8 +81,8 @@ from dataclasses import dataclass
 import numpy as np
 from sklearn.cluster import KMeans
 
-from mlkm_core.associators.base import Associator, Session, register
-from mlkm_core.associators.kmeans import canonical_order, kmeans_labels
+from mlkm_core.associators.base import Associator, Session, canonical_order, register
+from mlkm_core.associators.kmeans import kmeans_labels
 from mlkm_core.preprocess import back_project
 from mlkm_core.types import Detections, Layout, segments
 

@@ -23,18 +23,19 @@ changes, and why:
   them, and a track of a single detection is labelled UNASSIGNED (a false alarm).
 
 Parameters: the variances of the pairwise cost are estimated from the data exactly as for
-``assignment`` (``tracker.estimate_params``).
+``assignment`` (``calibration.estimate_params``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from mlkm_core.associators.base import Associator, register
-from mlkm_core.associators.kmeans import canonical_order, kmeans_labels
+from mlkm_core.associators.base import Associator, canonical_order, register
+from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.kmeans import kmeans_labels
 from mlkm_core.associators.linking import match_sparse, relabel
 from mlkm_core.associators.mlkm import detect_errors
-from mlkm_core.associators.tracker import MotionParams, PairwiseModel, estimate_params
+from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.types import Detections, Layout, segments
 
 
@@ -56,10 +57,10 @@ def _pair_weights(
     m.grow(n1)
     if np.all(x2 >= x1):
         m.start(np.arange(n1), x1, t1, u1)
-        nll, d2 = m.pair_cost(r, x2, t2[c], u2[c])
+        nll, d2 = m.cost(m.predict(r, x2), t2[c], u2[c])
     else:  # backward: mirror the road (time and position change sign)
         m.start(np.arange(n1), -x1, -t1, u1)
-        nll, d2 = m.pair_cost(r, -x2, -t2[c], u2[c])
+        nll, d2 = m.cost(m.predict(r, -x2), -t2[c], u2[c])
     extra = 0.0 if skipped is None else skipped[r] * p.miss_cost
     w = nll + extra - p.miss_cost - p.new_cost
     return r, c, np.where(d2 <= p.gate, w, 0.0)
@@ -83,7 +84,7 @@ def implausible_links(
     bad = np.zeros(a.size, bool)
     for s in np.unique(d.sensor_index[b]):
         k = np.flatnonzero(d.sensor_index[b] == s)
-        _, d2 = m.pair_cost(k, float(positions[s]), d.stamp[b[k]], u[b[k]])
+        _, d2 = m.cost(m.predict(k, float(positions[s])), d.stamp[b[k]], u[b[k]])
         bad[k] = d2 > p.gate
     return frozenset(int(s) for s in np.unique(d.sensor_index[b[bad]]))
 
@@ -180,7 +181,7 @@ class RobustMLKM(Associator):
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d) == 0:
             return out
-        p, _ = estimate_params(layout, d)
+        p = estimate_params(layout, d)
         pos = layout.positions
         u = 1.0 / d.velocity
         track = np.full(len(d), -1, dtype=np.int64)

@@ -1,21 +1,28 @@
 """``multiframe``: assignment with evidence from many sensors at once (the best method).
 
 Pairwise sequential assignment is already optimal for pairwise costs, so the gain has to come
-from higher-order evidence. Two sources, both in ``tracker``:
+from higher-order evidence. Two sources:
 
-1. *Kalman tracks over the road.* Each track is a Kalman filter on (passage time, slowness,
-   cruise slowness) with the exact Ornstein-Uhlenbeck-in-distance transition of the traffic
-   model. The cruise speed, to which a target's speed reverts, is learnt from all its past
-   detections, and noisy stamps and speeds are averaged over them; each sensor step is the same
-   gated optimal assignment with dummies as ``assignment``, with the Kalman innovation NLL as
-   the cost.
-2. *Multi-frame refinement (an N-scan-style local search).* After the forward pass, moves that
-   exchange two tracks' detections at one or two sensors, or their whole tails (2-opt, which
-   also stitches a track lost after misses onto the track that was born from its detections),
-   are scored by the Kalman marginal likelihood of both tracks over +-8 sensors around the
-   exchange, i.e. with look-ahead as well as history; improving moves are applied greedily
-   until none is left. It starts from the Kalman pass and, for inputs of up to 5000
+1. *Kalman tracks over the road* (``motion.KalmanModel``, run by ``linking.link``). Each track
+   is a Kalman filter on (passage time, slowness, cruise slowness) with the exact
+   Ornstein-Uhlenbeck-in-distance transition of the traffic model. The cruise speed, to which
+   a target's speed reverts, is learnt from all its past detections, and noisy stamps and
+   speeds are averaged over them; each sensor step is the same gated optimal assignment with
+   dummies as ``assignment``, with the Kalman innovation NLL as the cost.
+2. *Multi-frame refinement* (``search.refine``, an N-scan-style local search). After the
+   forward pass, moves that exchange two tracks' detections at 1, 2, 3 or 5 consecutive
+   sensors, or their whole tails (2-opt, which also stitches a track lost after misses onto
+   the track that was born from its detections), are scored by the Kalman marginal
+   likelihood of both tracks over the 6 sensors before and the 6 sensors from the exchange on,
+   i.e. with look-ahead as well as history; improving moves are applied greedily until none
+   is left. It starts from the Kalman pass and, for inputs of up to ``DUAL_START_MAX``
    detections, also from the pairwise pass; the more likely result (Kalman model) is kept.
+
+The model parameters are estimated from the data (``calibration.estimate_params``). The local
+search scores at most ``AssociatorConfig.search_budget`` candidates per starting point. When
+neither starting point can be scored (the likelihood is not finite, e.g. on stop-and-go
+traffic at near-zero speeds), the result is the pairwise assignment's; a cut-short search and
+the fallback both issue a ``DegradedResultWarning``.
 
 Why this and not a min-cost flow or a full multi-dimensional assignment: the flow needs
 pairwise (Markov) edge costs, which cannot carry the learnt cruise speed, and the S-D
@@ -26,11 +33,21 @@ number of detections (gating keeps every assignment block and the candidate set 
 
 from __future__ import annotations
 
+import math
+import warnings
+
 import numpy as np
 
-from mlkm_core.associators.base import Associator, register
-from mlkm_core.associators.linking import relabel
-from mlkm_core.associators.tracker import canonical, estimate_params, link, refine, total_nll
+from mlkm_core.associators.base import (
+    Associator,
+    DegradedResultWarning,
+    canonical_order,
+    register,
+)
+from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.likelihood import total_nll
+from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.search import refine
 from mlkm_core.types import Detections, Layout
 
 #: above this many detections the search starts from the Kalman pass only (cost; the second
@@ -43,19 +60,40 @@ class MultiFrameAssociator(Associator):
     name = 'multiframe'
 
     def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
-        order = canonical(detections)
+        order = canonical_order(detections)
         d = detections.subset(order)
         out = np.full(len(d), -1, dtype=np.int64)
-        if len(d):
-            params, _ = estimate_params(layout, d)
-            # local search from two starting points (the Kalman and the pairwise forward
-            # pass); keep the more likely result under the Kalman model
-            best, best_nll = None, np.inf
-            starts = ('kalman', 'pairwise') if len(d) <= DUAL_START_MAX else ('kalman',)
+        if len(d) == 0:
+            return out
+        params = estimate_params(layout, d)
+        budget = self.config.search_budget
+        # local search from two starting points (the Kalman and the pairwise forward pass);
+        # keep the more likely result under the Kalman model
+        best, best_nll, pairwise = None, math.inf, None
+        starts = ('kalman', 'pairwise') if len(d) <= DUAL_START_MAX else ('kalman',)
+        with np.errstate(all='ignore'):  # a non-finite score only disqualifies a start
             for model in starts:
-                lab = refine(layout, d, link(layout, d, params, model), params)
-                nll = total_nll(layout, d, lab, params)
-                if nll < best_nll:
-                    best, best_nll = lab, nll
-            out[order] = relabel(best)
+                start = link(layout, d, params, model)
+                if model == 'pairwise':
+                    pairwise = start
+                result = refine(layout, d, start, params, budget=budget)
+                if result.exhausted:
+                    warnings.warn(
+                        f'multiframe: the local search from the {model} pass stopped at its '
+                        f'budget of {budget} candidates; the result is the best found within it',
+                        DegradedResultWarning,
+                        stacklevel=2,
+                    )
+                nll = total_nll(layout, d, result.labels, params)
+                if math.isfinite(nll) and nll < best_nll:
+                    best, best_nll = result.labels, nll
+        if best is None:
+            warnings.warn(
+                'multiframe: no starting point has a finite likelihood under the calibrated '
+                'Kalman model (e.g. near-zero speeds); returning the pairwise assignment',
+                DegradedResultWarning,
+                stacklevel=2,
+            )
+            best = pairwise if pairwise is not None else link(layout, d, params, 'pairwise')
+        out[order] = relabel(best)
         return out

@@ -1,0 +1,186 @@
+"""Self-calibration: the motion model's parameters estimated from the detections themselves.
+
+The parameters are not given to the associators. Pass 1 links with generic parameters
+(``MotionParams()``, pairwise model); from its tracks, ``calibrate`` takes moments: the speed
+variogram gamma(h) = 0.5 E[(v(x + h) - v(x))^2] over pairs of detections of one track gives
+sigma_v^2 (nugget), sigma^2 (sill) and L (range, by a grid search with non-negative least
+squares); the trapezoid residuals of consecutive links give sigma_t; skipped sensors give
+p_miss, singleton tracks the false-alarm density. ``fit_motion`` then maximises the Kalman
+marginal likelihood of those tracks over (sigma, L, sigma_t, sigma_v). ``estimate_params``
+does all three.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import nnls
+
+from mlkm_core.associators.likelihood import sequence_nll, track_sequences
+from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, MotionParams
+from mlkm_core.types import Detections, Layout
+
+
+def _variogram_fit(
+    layout: Layout, d: Detections, labels: np.ndarray, max_pairs: int = 200_000
+) -> tuple[float, float, float] | None:
+    """(nugget sigma_v, sill sigma, range L) of the speed variogram over same-track pairs."""
+    keep = labels >= 0
+    if keep.sum() < 10:
+        return None
+    lab, x, v = labels[keep], layout.positions[d.sensor_index[keep]], d.velocity[keep]
+    order = np.lexsort((x, lab))
+    lab, x, v = lab[order], x[order], v[order]
+    h_all, g_all = [], []
+    n = lab.size
+    for lag in range(1, 12):
+        if lag >= n:
+            break
+        same = lab[lag:] == lab[:-lag]
+        h_all.append((x[lag:] - x[:-lag])[same])
+        g_all.append(0.5 * (v[lag:] - v[:-lag])[same] ** 2)
+    h = np.concatenate(h_all)
+    g = np.concatenate(g_all)
+    if h.size < 10:
+        return None
+    if h.size > max_pairs:
+        sel = np.random.default_rng(0).choice(h.size, max_pairs, replace=False)
+        h, g = h[sel], g[sel]
+    # robust: drop gross outliers (wrong links) before fitting
+    cut = np.quantile(g, 0.99)
+    h, g = h[g <= cut], g[g <= cut]
+    # bin by lag distance so that dense short lags do not dominate
+    edges = np.unique(np.quantile(h, np.linspace(0, 1, 25)))
+    if edges.size < 3:
+        return None
+    b = np.clip(np.searchsorted(edges, h, side='right') - 1, 0, edges.size - 2)
+    cnt = np.bincount(b, minlength=edges.size - 1)
+    ok = cnt > 0
+    hb = np.bincount(b, h, edges.size - 1)[ok] / cnt[ok]
+    gb = np.bincount(b, g, edges.size - 1)[ok] / cnt[ok]
+    wb = np.sqrt(cnt[ok])
+    best = None
+    for L in np.geomspace(50, 20000, 40):
+        A = np.column_stack([np.ones_like(hb), 1 - np.exp(-hb / L)]) * wb[:, None]
+        coef, res = nnls(A, gb * wb)
+        if best is None or res < best[0]:
+            best = (res, coef, L)
+    _, (nug, sill), L = best
+    return math.sqrt(nug), math.sqrt(sill), float(L)
+
+
+def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams) -> MotionParams:
+    """Moment estimates of the model parameters from the raw track ids of a first pass."""
+    labels = relabel(raw)
+    fit = _variogram_fit(layout, d, labels)
+    p = base
+    if fit is not None:
+        nug, sill, L = fit
+        p = replace(p, velocity_noise=max(nug, FLOOR_V), sigma=max(sill, 0.05), length=L)
+    x = layout.positions[d.sensor_index]
+    order = np.lexsort((x, labels))
+    lab, xs, ts, us, ss = (
+        labels[order],
+        x[order],
+        d.stamp[order],
+        1 / d.velocity[order],
+        d.sensor_index[order],
+    )
+    same = (lab[1:] == lab[:-1]) & (lab[1:] >= 0)
+    if same.sum() >= 10:
+        dx = (xs[1:] - xs[:-1])[same]
+        e_t = (ts[1:] - ts[:-1])[same] - dx * (us[1:] + us[:-1])[same] / 2
+        u2 = (us[1:] * us[:-1])[same]
+        known = dx * dx * (p.velocity_noise**2) * u2 * u2 / 2 + (p.sigma * u2) ** 2 * dx**3 / (
+            6 * p.length
+        )
+        r2 = e_t * e_t
+        cut = np.quantile(r2, 0.98)
+        ok = r2 <= cut
+        st2 = max(float(np.mean(r2[ok] - known[ok])) / 2, 0.0)
+        # the 2% trim removes the tail of the Gaussian too: undo its shrinkage (chi2_1)
+        st2 /= 0.80
+        p = replace(p, stamp_noise=max(math.sqrt(st2), FLOOR_T))
+        skipped = ((ss[1:] - ss[:-1])[same] - 1).sum()
+        slots = (ss[1:] - ss[:-1])[same].sum() + np.unique(lab[lab >= 0]).size
+        p = replace(p, p_miss=float(np.clip(skipped / max(slots, 1), 1e-3, 0.5)))
+    n_single = int(((raw >= 0) & (labels < 0)).sum())
+    n_s = layout.n_sensors
+    span = np.ptp(d.stamp) if len(d) else 1.0
+    u = 1 / d.velocity
+    u_spread = math.sqrt(2 * math.pi) * max(float(np.std(u)), 1e-6)
+    rate = max(n_single / n_s, 0.01)
+    p = replace(p, clutter_density=rate / max(span, 1.0) / u_spread)
+    return p
+
+
+_FIT_FIELDS = ('sigma', 'length', 'stamp_noise', 'velocity_noise')
+_FIT_BOUNDS = {
+    'sigma': (0.05, 50.0),
+    'length': (5.0, 1e5),
+    'stamp_noise': (FLOOR_T, 5.0),
+    'velocity_noise': (FLOOR_V, 5.0),
+}
+_FIT_FACTORS = (np.array([0.35, 0.6, 1.0, 1.7, 2.9]), np.array([0.8, 0.9, 1.0, 1.1, 1.25]))
+
+
+def min_length(layout: Layout) -> float:
+    """Lower bound of the fitted correlation length L [m].
+
+    A fluctuation that decorrelates within a few sensor spacings cannot be told apart from
+    speed measurement noise at this sampling, and the fit would trade one for the other; L is
+    kept above 4 median spacings and a fifth of the instrumented road.
+    """
+    pos = layout.positions
+    if pos.size < 2:
+        return 5.0
+    return float(max(4 * np.median(np.diff(pos)), 0.4 * (pos[-1] - pos[0]), 5.0))
+
+
+def fit_motion(
+    layout: Layout, d: Detections, labels: np.ndarray, p: MotionParams, max_tracks: int = 120
+) -> MotionParams:
+    """Maximum-likelihood motion parameters given tracks (coordinate search on log grids).
+
+    The Kalman marginal likelihood of the tracks of a first pass is maximised over
+    (sigma, L, sigma_t, sigma_v), one coordinate at a time, five values per coordinate scored
+    in one batched pass; innovations are capped (``sequence_nll``) so that the few wrong links
+    of the first pass do not inflate the noise estimates.
+    """
+    seqs = track_sequences(d, labels, min_len=3, max_tracks=max_tracks)
+    n = seqs.shape[0]
+    if n < 3:
+        return p
+    bounds = dict(_FIT_BOUNDS)
+    bounds['length'] = (min_length(layout), _FIT_BOUNDS['length'][1])
+    p = replace(p, length=float(np.clip(p.length, *bounds['length'])))
+    # joint coarse grid on (sigma, L), which trade off against each other, then coordinates
+    fs = np.array([0.5, 0.7, 1.0, 1.4, 2.0])
+    sg = np.repeat(np.clip(p.sigma * fs, *bounds['sigma']), fs.size)
+    ln = np.tile(np.clip(p.length * fs, *bounds['length']), fs.size)
+    rows = {f: np.full(n * sg.size, float(getattr(p, f))) for f in _FIT_FIELDS}
+    rows['sigma'], rows['length'] = np.repeat(sg, n), np.repeat(ln, n)
+    nll = sequence_nll(layout, d, np.tile(seqs, (sg.size, 1)), p, rows=rows)
+    best = int(np.argmin(nll.reshape(sg.size, n).sum(axis=1)))
+    p = replace(p, sigma=float(sg[best]), length=float(ln[best]))
+    for factors in _FIT_FACTORS:
+        for name in _FIT_FIELDS:
+            lo, hi = bounds[name]
+            vals = np.clip(getattr(p, name) * factors, lo, hi)
+            rows = {f: np.full(n * vals.size, float(getattr(p, f))) for f in _FIT_FIELDS}
+            rows[name] = np.repeat(vals, n)
+            nll = sequence_nll(layout, d, np.tile(seqs, (vals.size, 1)), p, rows=rows)
+            best = int(np.argmin(nll.reshape(vals.size, n).sum(axis=1)))
+            p = replace(p, **{name: float(vals[best])})
+    return p
+
+
+def estimate_params(layout: Layout, d: Detections) -> MotionParams:
+    """Self-calibration: pass 1 with generic parameters, then moments, then maximum likelihood."""
+    base = MotionParams()
+    raw = link(layout, d, base, 'pairwise')
+    p = calibrate(layout, d, raw, base)
+    return fit_motion(layout, d, relabel(raw), p)

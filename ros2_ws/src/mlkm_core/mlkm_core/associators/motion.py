@@ -1,0 +1,327 @@
+"""Motion models of a target along the road, shared by the tracking associators.
+
+Travel along the road is modelled in *slowness* u = 1/v [s/m], in which the passage time is
+linear: tau(x2) = tau(x1) + int u dx. The simulator's speed is an Ornstein-Uhlenbeck process
+in distance around each target's cruise speed (correlation length L, stationary std sigma);
+in slowness that is, to first order, an OU process around the cruise slowness m with std
+sigma_u = sigma * m^2. Stamps and speeds carry Gaussian noise sigma_t, sigma_v.
+
+A :class:`MotionModel` holds the state of many tracks (arrays indexed by track id) and offers
+the few operations the linker and the likelihood need: start tracks, predict them to a
+position, a gating window, the cost of a measurement given a prediction, and the update.
+Two models, chosen by name (:func:`make_model`):
+
+* ``pairwise`` (:class:`PairwiseModel`, used by ``assignment``): a track is its last
+  detection. The cost of linking it to a detection at the next sensor is the Gaussian NLL of
+  two residuals, each scaled by its variance: the travel time predicted from the speeds at
+  *both* ends (trapezoid in slowness), e_t = t2 - t1 - dx (u1 + u2) / 2,
+  var = 2 sigma_t^2 + dx^2 (var u1 + var u2) / 4 + sigma_u^2 dx^3 / (6 L) (a Brownian bridge
+  of the fluctuation between two known ends), and the slowness change e_u = u2 - u1,
+  var = 2 var_u,noise + 2 sigma_u^2 (1 - exp(-dx / L)) (the stationary OU increment).
+* ``kalman`` (:class:`KalmanModel`, used by ``multiframe``): a track is a Kalman filter over
+  position with the state (tau, u, m): passage time, slowness and the target's own cruise
+  slowness. The exact OU transition (and its integral, for tau) is used, so every past
+  detection of the track informs the prediction: the cruise slowness m is learnt over several
+  sensors (the speed reverts to it) and noisy stamps/speeds are averaged.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+LOG2PI = math.log(2.0 * math.pi)
+FLOOR_T = 1e-3  # [s] floor of sigma_t (paper mode has exact stamps)
+FLOOR_V = 1e-3  # [m/s] floor of sigma_v
+
+
+@dataclass(frozen=True)
+class MotionParams:
+    """Parameters of the traffic and sensor model (estimated by ``calibration``)."""
+
+    sigma: float = 2.0  # stationary std of the speed fluctuation [m/s]
+    length: float = 500.0  # correlation length L of the fluctuation [m]
+    stamp_noise: float = 0.1  # sigma_t [s]
+    velocity_noise: float = 0.2  # sigma_v [m/s]
+    p_miss: float = 0.02  # probability that a passage is not reported
+    clutter_density: float = 1e-3  # false alarms per sensor per second per (s/m) of slowness
+    gate: float = 36.0  # chi-square gate on the normalised innovation (6 sigma)
+    max_skip: int = 3  # a track may miss this many consecutive sensors
+
+    @property
+    def miss_cost(self) -> float:
+        return -math.log(self.p_miss)
+
+    @property
+    def new_cost(self) -> float:
+        return -math.log(self.clutter_density)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Tracks predicted to a position: ``tracks[i]`` to ``x`` (scalar or per row).
+
+    ``mean`` and ``cov`` are the predicted state of a filtering model (None for a model whose
+    prediction is its stored state). Row i of a cost or update refers to row i here.
+    """
+
+    tracks: np.ndarray
+    x: float | np.ndarray
+    mean: np.ndarray | None = None
+    cov: np.ndarray | None = None
+
+    def take(self, rows: np.ndarray) -> Prediction:
+        """The prediction of the given rows (repeats allowed), in that order."""
+        x = self.x if np.isscalar(self.x) else np.asarray(self.x)[rows]
+        if self.mean is None:
+            return Prediction(self.tracks[rows], x)
+        return Prediction(self.tracks[rows], x, self.mean[rows], self.cov[rows])
+
+
+class MotionModel(ABC):
+    """State of many tracks under one motion model; tracks are ids 0..n-1 (see ``grow``)."""
+
+    name: ClassVar[str]
+
+    def __init__(self, params: MotionParams) -> None:
+        self.p = params
+
+    @abstractmethod
+    def grow(self, n: int) -> None:
+        """Make room for ``n`` more tracks (ids continue after the existing ones)."""
+
+    @abstractmethod
+    def start(
+        self, tracks: np.ndarray, x: float | np.ndarray, t: np.ndarray, u: np.ndarray
+    ) -> None:
+        """Start ``tracks`` from one detection each: position x, stamp t, slowness u."""
+
+    @abstractmethod
+    def predict(self, tracks: np.ndarray, x: float | np.ndarray) -> Prediction:
+        """Predict ``tracks`` (last seen upstream) to position ``x``."""
+
+    @abstractmethod
+    def gate_window(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
+        """(centre, half width) of the passage-time window in which each track is gated."""
+
+    @abstractmethod
+    def cost(
+        self, pred: Prediction, t: np.ndarray, u: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(NLL, squared Mahalanobis distance) of detection i (t[i], u[i]) for ``pred`` row i."""
+
+    @abstractmethod
+    def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
+        """Take detection i into the track of ``pred`` row i (each track at most once)."""
+
+
+_MODELS: dict[str, type[MotionModel]] = {}
+
+
+def register_model(cls: type[MotionModel]) -> type[MotionModel]:
+    """Class decorator: make a motion model selectable by its ``name``."""
+    if cls.name in _MODELS:
+        raise ValueError(f'motion model {cls.name!r} registered twice')
+    _MODELS[cls.name] = cls
+    return cls
+
+
+def make_model(name: str, params: MotionParams) -> MotionModel:
+    """A new, empty motion model chosen by name (``pairwise`` or ``kalman``)."""
+    if name not in _MODELS:
+        raise ValueError(f'unknown motion model {name!r}; choose one of {", ".join(_MODELS)}')
+    return _MODELS[name](params)
+
+
+@register_model
+class PairwiseModel(MotionModel):
+    """Track = its last detection; pairwise cost on travel time and slowness continuity."""
+
+    name = 'pairwise'
+
+    def __init__(self, params: MotionParams) -> None:
+        super().__init__(params)
+        self.x = np.zeros(0)
+        self.t = np.zeros(0)
+        self.u = np.zeros(0)
+
+    def grow(self, n: int) -> None:
+        self.x = np.concatenate([self.x, np.zeros(n)])
+        self.t = np.concatenate([self.t, np.zeros(n)])
+        self.u = np.concatenate([self.u, np.zeros(n)])
+
+    def start(
+        self, tracks: np.ndarray, x: float | np.ndarray, t: np.ndarray, u: np.ndarray
+    ) -> None:
+        self.x[tracks], self.t[tracks], self.u[tracks] = x, t, u
+
+    def predict(self, tracks: np.ndarray, x: float | np.ndarray) -> Prediction:
+        return Prediction(tracks, x)
+
+    def _var_u_noise(self, u: np.ndarray) -> np.ndarray:
+        return (max(self.p.velocity_noise, FLOOR_V) * u * u) ** 2
+
+    def gate_window(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
+        p, tracks = self.p, pred.tracks
+        dx = pred.x - self.x[tracks]
+        u = self.u[tracks]
+        var_du = 2 * self._var_u_noise(u) + 2 * (p.sigma * u * u) ** 2 * (
+            1 - np.exp(-dx / p.length)
+        )
+        var_t = (
+            2 * max(p.stamp_noise, FLOOR_T) ** 2
+            + dx * dx * var_du
+            + (p.sigma * u * u) ** 2 * dx**3 / (6 * p.length)
+        )
+        return self.t[tracks] + dx * u, np.sqrt(p.gate * var_t)
+
+    def cost(
+        self, pred: Prediction, t: np.ndarray, u: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        p, tracks = self.p, pred.tracks
+        dx = pred.x - self.x[tracks]
+        u1 = self.u[tracks]
+        su2 = (p.sigma * u1 * u) ** 2  # sigma_u^2 with m^2 ~ u1 u2
+        vn1, vn2 = self._var_u_noise(u1), self._var_u_noise(u)
+        e_t = t - self.t[tracks] - dx * (u1 + u) / 2
+        var_t = (
+            2 * max(p.stamp_noise, FLOOR_T) ** 2
+            + dx * dx * (vn1 + vn2) / 4
+            + su2 * dx**3 / (6 * p.length)
+        )
+        e_u = u - u1
+        var_u = vn1 + vn2 + 2 * su2 * (1 - np.exp(-dx / p.length))
+        d2 = e_t * e_t / var_t + e_u * e_u / var_u
+        return 0.5 * (d2 + np.log(var_t * var_u)) + LOG2PI, d2
+
+    def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
+        self.start(pred.tracks, pred.x, t, u)
+
+
+@register_model
+class KalmanModel(MotionModel):
+    """Track = Kalman filter on (tau, u, m) with the exact OU-in-distance transition.
+
+    ``rows`` (optional) gives per-track parameter sets: arrays of sigma, length, stamp and
+    velocity noise, one entry per track (used to score many parameter sets in one pass).
+    """
+
+    name = 'kalman'
+
+    def __init__(self, params: MotionParams, rows: dict[str, np.ndarray] | None = None) -> None:
+        super().__init__(params)
+        self.rows = rows
+        self.x = np.zeros(0)
+        self.mean = np.zeros((0, 3))
+        self.cov = np.zeros((0, 3, 3))
+
+    def load(self, x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Replace the state of every track (copies), e.g. to continue saved filters."""
+        self.x, self.mean, self.cov = x.copy(), mean.copy(), cov.copy()
+
+    def _par(self, name: str, tracks: np.ndarray) -> float | np.ndarray:
+        if self.rows is not None and name in self.rows:
+            return self.rows[name][tracks]
+        return getattr(self.p, name)
+
+    def grow(self, n: int) -> None:
+        self.x = np.concatenate([self.x, np.zeros(n)])
+        self.mean = np.concatenate([self.mean, np.zeros((n, 3))])
+        self.cov = np.concatenate([self.cov, np.zeros((n, 3, 3))])
+
+    def noise(self, tracks: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Measurement noise variances (stamp, slowness) of detections with slowness u."""
+        st = np.maximum(self._par('stamp_noise', tracks), FLOOR_T)
+        sv = np.maximum(self._par('velocity_noise', tracks), FLOOR_V)
+        return st * st + 0 * u, (sv * u * u) ** 2
+
+    def start(
+        self, tracks: np.ndarray, x: float | np.ndarray, t: np.ndarray, u: np.ndarray
+    ) -> None:
+        rt, ru = self.noise(tracks, u)
+        sigma, length = self._par('sigma', tracks), self._par('length', tracks)
+        # deviation from the cruise speed: zero at the road entry, OU-grown up to x
+        dev = (sigma * u * u) ** 2 * (1 - np.exp(-2 * np.asarray(x) / length))
+        cov = np.zeros((tracks.size, 3, 3))
+        cov[:, 0, 0] = rt
+        cov[:, 1, 1] = ru
+        cov[:, 1, 2] = cov[:, 2, 1] = ru
+        cov[:, 2, 2] = ru + dev
+        self.x[tracks] = x
+        self.mean[tracks] = np.column_stack([t, u, u])
+        self.cov[tracks] = cov
+
+    def predict(self, tracks: np.ndarray, x: float | np.ndarray) -> Prediction:
+        d = x - self.x[tracks]
+        L = self._par('length', tracks)
+        a = np.exp(-d / L)
+        z = d / L
+        small = z < 1e-3
+        zs = np.where(small, z, 0.0)
+        i_var = (
+            np.where(small, (2 / 3) * zs**3 - 0.5 * zs**4, 2 * z - 3 + 4 * a - a * a) * L * L
+        )  # Var of int of OU / sigma_u^2
+        b = L * (1 - a)
+        m = self.mean[tracks]
+        P = self.cov[tracks]
+        su2 = (self._par('sigma', tracks) * m[:, 2] ** 2) ** 2
+        f01, f02, f11, f12 = b, d - b, a, 1 - a
+        mean = np.column_stack(
+            [m[:, 0] + f01 * m[:, 1] + f02 * m[:, 2], f11 * m[:, 1] + f12 * m[:, 2], m[:, 2]]
+        )
+        # F P F^T with F = [[1, f01, f02], [0, f11, f12], [0, 0, 1]], done by rows
+        r0 = P[:, 0, :] + f01[:, None] * P[:, 1, :] + f02[:, None] * P[:, 2, :]
+        r1 = f11[:, None] * P[:, 1, :] + f12[:, None] * P[:, 2, :]
+        r2 = P[:, 2, :]
+        cov = np.empty_like(P)
+        for i, r in enumerate((r0, r1, r2)):
+            cov[:, i, 0] = r[:, 0] + f01 * r[:, 1] + f02 * r[:, 2]
+            cov[:, i, 1] = f11 * r[:, 1] + f12 * r[:, 2]
+            cov[:, i, 2] = r[:, 2]
+        cov[:, 0, 0] += su2 * np.maximum(i_var, 0)
+        q01 = su2 * L * (1 - a) ** 2
+        cov[:, 0, 1] += q01
+        cov[:, 1, 0] += q01
+        cov[:, 1, 1] += su2 * (1 - a * a)
+        return Prediction(tracks, x, mean, cov)
+
+    def gate_window(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
+        rt, _ = self.noise(pred.tracks, pred.mean[:, 1])
+        return pred.mean[:, 0], np.sqrt(self.p.gate * (pred.cov[:, 0, 0] + rt))
+
+    def cost(
+        self, pred: Prediction, t: np.ndarray, u: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        mean, cov = pred.mean, pred.cov
+        rt, ru = self.noise(pred.tracks, u)
+        s00 = cov[:, 0, 0] + rt
+        s11 = cov[:, 1, 1] + ru
+        s01 = cov[:, 0, 1]
+        det = s00 * s11 - s01 * s01
+        y0 = t - mean[:, 0]
+        y1 = u - mean[:, 1]
+        d2 = (s11 * y0 * y0 - 2 * s01 * y0 * y1 + s00 * y1 * y1) / det
+        return 0.5 * (d2 + np.log(det)) + LOG2PI, d2
+
+    def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
+        mean, cov, tracks = pred.mean, pred.cov, pred.tracks
+        rt, ru = self.noise(tracks, u)
+        s00 = cov[:, 0, 0] + rt
+        s11 = cov[:, 1, 1] + ru
+        s01 = cov[:, 0, 1]
+        det = s00 * s11 - s01 * s01
+        i00, i11, i01 = s11 / det, s00 / det, -s01 / det
+        pc0, pc1 = cov[:, :, 0], cov[:, :, 1]  # P H^T columns
+        k0 = pc0 * i00[:, None] + pc1 * i01[:, None]
+        k1 = pc0 * i01[:, None] + pc1 * i11[:, None]
+        y0 = t - mean[:, 0]
+        y1 = u - mean[:, 1]
+        self.mean[tracks] = mean + k0 * y0[:, None] + k1 * y1[:, None]
+        self.cov[tracks] = (
+            cov - k0[:, :, None] * cov[:, 0, None, :] - (k1[:, :, None] * cov[:, 1, None, :])
+        )
+        self.x[tracks] = pred.x

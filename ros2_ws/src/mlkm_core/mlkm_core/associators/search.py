@@ -1,0 +1,214 @@
+"""Multi-frame local search (N-scan style) on track exchanges, scored by Kalman likelihood.
+
+``refine`` improves a labelling by exchanging detections between pairs of tracks. A move
+(A, B, s, k) exchanges between tracks A and B their detections at sensors [s, s + k) for k in
+``MOVES`` (1, 2, 3 or 5 sensors), or their whole tails from s on (k = 0, a 2-opt exchange;
+when B starts at s it stitches B onto A, a track lost after misses onto the track that was
+born from its detections). Candidates are the gated pairs (A's last detection before s, a
+detection of B at s) in a window of ``CANDIDATE_GATE`` of the tracking gate. Each move is
+scored by the Kalman marginal NLL (``likelihood``) of the four sequences (old A, B and new A,
+B) restricted to sensors [s - window, s + window), with the birth / early-end costs of tracks
+that start or end inside the window; improving moves are applied greedily, best first, each
+track at most once per round; the next round looks only at moves that involve a track changed
+in the round before, for at most ``rounds`` rounds.
+
+The work is bounded by ``budget``, the number of candidates scored over all rounds (each with
+all its ``MOVES``). Congested traffic (near-stationary vehicles, whose passage-time gates span
+the whole episode) can otherwise produce candidates quadratic in the number of tracks. When a
+round has more candidates than the budget left, the first ones in (track, track, sensor)
+order are scored and the search stops after applying their improving moves; the result is
+deterministic for a given input and budget.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mlkm_core.associators.likelihood import sequence_nll, sequence_state
+from mlkm_core.associators.linking import by_sensor, gate_pairs
+from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.types import Detections, Layout
+
+#: exchange lengths tried for each candidate: the whole tail (0) or 1, 2, 3, 5 sensors
+MOVES = (0, 1, 2, 3, 5)
+#: candidate time window as a fraction of the tracking gate (4 of 6 sigma)
+CANDIDATE_GATE = 4 / 6
+#: candidates scored in one batch (bounds the memory of the batched filters)
+CHUNK = 20_000
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """Outcome of ``refine``: the labels and the work it took."""
+
+    labels: np.ndarray  # raw track ids (no singleton pruning)
+    rounds: int  # rounds that scored candidates
+    scored: int  # candidates scored over all rounds (the unit of ``budget``)
+    exhausted: bool  # True when the budget left candidates unscored
+
+
+def candidates(
+    layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, B, s): a detection of track B at sensor s is in the time gate of the pairwise
+    prediction from track A's last detection before s."""
+    n_s = layout.n_sensors
+    per_sensor = by_sensor(d, n_s)
+    u_all = 1.0 / d.velocity
+    n_tracks = int(labels.max()) + 1 if (labels >= 0).any() else 0
+    last_det = np.full(n_tracks, -1, dtype=np.int64)
+    out_a, out_b, out_s = [], [], []
+    for s in range(n_s):
+        idx = per_sensor[s]
+        if s > 0 and idx.size:
+            ld = last_det[last_det >= 0]
+            act = ld[d.sensor_index[ld] >= s - 1 - params.max_skip]
+            if act.size:
+                pw = PairwiseModel(params)
+                pw.grow(act.size)
+                ids = np.arange(act.size)
+                pw.start(ids, layout.positions[d.sensor_index[act]], d.stamp[act], u_all[act])
+                centre, half = pw.gate_window(pw.predict(ids, float(layout.positions[s])))
+                r, c = gate_pairs(centre, half * CANDIDATE_GATE, d.stamp[idx])
+                a, b = labels[act[r]], labels[idx[c]]
+                ok = (a != b) & (b >= 0)
+                out_a.append(a[ok])
+                out_b.append(b[ok])
+                out_s.append(np.full(int(ok.sum()), s))
+        lab = labels[idx]
+        last_det[lab[lab >= 0]] = idx[lab >= 0]
+    if not out_a:
+        z = np.zeros(0, np.int64)
+        return z, z, z
+    return np.concatenate(out_a), np.concatenate(out_b), np.concatenate(out_s)
+
+
+def _gains(
+    layout: Layout,
+    d: Detections,
+    M: np.ndarray,
+    params: MotionParams,
+    ca: np.ndarray,
+    cb: np.ndarray,
+    cs: np.ndarray,
+    window: int,
+) -> np.ndarray:
+    """(n_cand, n_moves) change of NLL of every move of every candidate (< 0 improves)."""
+    n_s = M.shape[1]
+    has = M >= 0
+    first_s = np.where(has.any(axis=1), has.argmax(axis=1), n_s)
+    last_s = np.where(has.any(axis=1), n_s - 1 - has[:, ::-1].argmax(axis=1), -1)
+    offs = np.arange(-window, window)
+    cols = cs[:, None] + offs[None, :]
+    inside = (cols >= 0) & (cols < n_s)
+    cc = np.clip(cols, 0, n_s - 1)
+    wa = np.where(inside, M[ca[:, None], cc], -1)
+    wb = np.where(inside, M[cb[:, None], cc], -1)
+    lo, hi = cs - window, cs + window
+    a_born, b_born = first_s[ca] >= lo, first_s[cb] >= lo
+    a_more, b_more = last_s[ca] >= hi, last_s[cb] >= hi
+    # the prefix (sensors before s) is the same for old and new sequences: filter it once,
+    # then continue every old and new suffix from the prefix state of its owner
+    n_c = ca.size
+    birth2 = np.concatenate([a_born, b_born])
+    pre = sequence_state(
+        layout, d, np.concatenate([wa[:, :window], wb[:, :window]]), params, birth2
+    )
+    sa, sb = wa[:, window:], wb[:, window:]
+    suf, owner, end = [sa, sb], [np.arange(n_c), n_c + np.arange(n_c)], [~a_more, ~b_more]
+    for k in MOVES:
+        region = (cols[:, window:] >= cs[:, None]) & (
+            (cols[:, window:] < cs[:, None] + k) if k else True
+        )
+        suf += [np.where(region, sb, sa), np.where(region, sa, sb)]
+        owner += [np.arange(n_c), n_c + np.arange(n_c)]
+        end += [~b_more, ~a_more] if k == 0 else [~a_more, ~b_more]
+    owner = np.concatenate(owner)
+    nll = sequence_nll(
+        layout,
+        d,
+        np.concatenate(suf),
+        params,
+        birth2[owner],
+        np.concatenate(end),
+        state=pre.take(owner),
+    ).reshape(len(suf), -1)
+    return np.stack(
+        [nll[2 + 2 * j] + nll[3 + 2 * j] - nll[0] - nll[1] for j in range(len(MOVES))], axis=1
+    )
+
+
+def refine(
+    layout: Layout,
+    d: Detections,
+    labels: np.ndarray,
+    params: MotionParams,
+    budget: int | None = None,
+    window: int = 6,
+    rounds: int = 10,
+) -> SearchResult:
+    """Local search on track exchanges (module doc); ``budget`` None means unbounded."""
+    n_s = layout.n_sensors
+    valid = np.flatnonzero(labels >= 0)
+    if valid.size == 0:
+        return SearchResult(labels.copy(), 0, 0, False)
+    n_tracks = int(labels.max()) + 1
+    M = np.full((n_tracks, n_s), -1, dtype=np.int64)
+    M[labels[valid], d.sensor_index[valid]] = valid
+    dirty = np.ones(n_tracks, bool)
+    cur = labels.copy()
+    scored, done, exhausted = 0, 0, False
+    for _ in range(rounds):
+        ca, cb, cs = candidates(layout, d, cur, params)
+        sel = dirty[ca] | dirty[cb]
+        ca, cb, cs = ca[sel], cb[sel], cs[sel]
+        if ca.size == 0:
+            break
+        # one move per unordered pair and sensor
+        key = np.unique(np.column_stack([np.minimum(ca, cb), np.maximum(ca, cb), cs]), axis=0)
+        if budget is not None and key.shape[0] > budget - scored:
+            exhausted = True
+            key = key[: budget - scored]
+            if key.shape[0] == 0:
+                break
+        ca, cb, cs = key[:, 0], key[:, 1], key[:, 2]
+        gain = np.concatenate(
+            [
+                _gains(
+                    layout,
+                    d,
+                    M,
+                    params,
+                    ca[i : i + CHUNK],
+                    cb[i : i + CHUNK],
+                    cs[i : i + CHUNK],
+                    window,
+                )
+                for i in range(0, ca.size, CHUNK)
+            ]
+        )
+        scored += ca.size
+        done += 1
+        flat = np.flatnonzero(gain.ravel() < -1e-6)
+        if flat.size == 0:
+            break
+        used = np.zeros(n_tracks, bool)
+        dirty[:] = False
+        for i in flat[np.argsort(gain.ravel()[flat], kind='stable')].tolist():
+            c, j = divmod(i, len(MOVES))
+            a, b, s = int(ca[c]), int(cb[c]), int(cs[c])
+            if used[a] or used[b]:
+                continue
+            used[a] = used[b] = dirty[a] = dirty[b] = True
+            e = n_s if MOVES[j] == 0 else min(s + MOVES[j], n_s)
+            tmp = M[a, s:e].copy()
+            M[a, s:e] = M[b, s:e]
+            M[b, s:e] = tmp
+        t_idx, s_idx = np.nonzero(M >= 0)
+        cur = np.full(labels.size, -1, dtype=np.int64)
+        cur[M[t_idx, s_idx]] = t_idx
+        if exhausted:
+            break
+    return SearchResult(cur, done, scored, exhausted)
