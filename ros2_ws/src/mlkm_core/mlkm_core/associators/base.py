@@ -29,7 +29,7 @@ class AssociatorConfig:
     seed: int = 0  # random_state of K-means / K-means++ / the DNN
     # multiframe: most candidate exchanges its local search scores per starting point (a
     # deterministic work budget; the search keeps the best labelling found within it)
-    search_budget: int = 2_000_000
+    search_budget: int = 500_000
 
     def __post_init__(self) -> None:
         if self.search_budget < 0:

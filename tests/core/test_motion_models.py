@@ -1,0 +1,113 @@
+"""The motion models against independent references.
+
+The Kalman model (exact Ornstein-Uhlenbeck-in-distance transition on (passage time, slowness,
+cruise slowness)) is checked against filterpy's textbook ``KalmanFilter`` fed with the same
+transition F, process noise Q and measurement noise R written out by hand: same predicted
+means and covariances, same updated state, same innovation log-likelihoods.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from filterpy.kalman import KalmanFilter
+
+from mlkm_core.associators.likelihood import sequence_nll
+from mlkm_core.associators.motion import KalmanModel, MotionParams, PairwiseModel, make_model
+from mlkm_core.types import Detections, Layout
+
+P = MotionParams(sigma=3.0, length=250.0, stamp_noise=0.15, velocity_noise=0.4)
+# one target along a road: positions [m], stamps [s], speeds [m/s] (speed changes and a long
+# gap between 420 m and 700 m)
+X = np.array([60.0, 130.0, 260.0, 420.0, 700.0, 760.0])
+T = np.array([2.0, 4.1, 7.3, 11.6, 19.0, 20.9])
+V = np.array([31.0, 33.5, 38.0, 35.0, 36.5, 33.0])
+
+
+def reference_matrices(p: MotionParams, d: float, m: float) -> tuple[np.ndarray, np.ndarray]:
+    """F and Q of the OU-in-distance model over a step d [m], cruise slowness m [s/m]."""
+    L = p.length
+    a = math.exp(-d / L)
+    F = np.array([[1.0, L * (1 - a), d - L * (1 - a)], [0.0, a, 1 - a], [0.0, 0.0, 1.0]])
+    su2 = (p.sigma * m * m) ** 2
+    var_int = (2 * d / L - 3 + 4 * a - a * a) * L * L  # Var of the integral of the OU / su2
+    Q = su2 * np.array(
+        [[var_int, L * (1 - a) ** 2, 0.0], [L * (1 - a) ** 2, 1 - a * a, 0.0], [0.0, 0.0, 0.0]]
+    )
+    return F, Q
+
+
+def reference_noise(p: MotionParams, u: float) -> np.ndarray:
+    return np.diag([p.stamp_noise**2, (p.velocity_noise * u * u) ** 2])
+
+
+def test_kalman_model_equals_a_reference_kalman_filter():
+    u = 1.0 / V
+    model = KalmanModel(P)
+    model.grow(1)
+    track = np.array([0])
+    model.start(track, X[0], T[:1], u[:1])
+
+    kf = KalmanFilter(dim_x=3, dim_z=2)
+    kf.H = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    kf.x = np.array([T[0], u[0], u[0]])
+    rt, ru = P.stamp_noise**2, (P.velocity_noise * u[0] ** 2) ** 2
+    dev = (P.sigma * u[0] ** 2) ** 2 * (1 - math.exp(-2 * X[0] / P.length))
+    kf.P = np.array([[rt, 0.0, 0.0], [0.0, ru, ru], [0.0, ru, ru + dev]])
+    np.testing.assert_allclose(model.mean[0], kf.x, rtol=1e-12)
+    np.testing.assert_allclose(model.cov[0], kf.P, rtol=1e-12)
+
+    total = 0.0
+    for k in range(1, X.size):
+        F, Q = reference_matrices(P, X[k] - X[k - 1], kf.x[2])
+        kf.predict(F=F, Q=Q)
+        pred = model.predict(track, X[k])
+        np.testing.assert_allclose(pred.mean[0], kf.x, rtol=1e-10)
+        np.testing.assert_allclose(pred.cov[0], kf.P, rtol=1e-9, atol=1e-15)
+
+        nll, d2 = model.cost(pred, T[k : k + 1], u[k : k + 1])
+        kf.update(np.array([T[k], u[k]]), R=reference_noise(P, u[k]))
+        assert nll[0] == pytest.approx(-kf.log_likelihood, rel=1e-9)
+        assert d2[0] == pytest.approx(float(kf.y @ np.linalg.solve(kf.S, kf.y)), rel=1e-9)
+        total += nll[0]
+
+        model.update(pred, T[k : k + 1], u[k : k + 1])
+        np.testing.assert_allclose(model.mean[0], kf.x, rtol=1e-10)
+        np.testing.assert_allclose(model.cov[0], kf.P, rtol=1e-8, atol=1e-15)
+
+    # neither born nor ended here and no sensor skipped: the track likelihood is exactly the
+    # sum of those innovation NLLs
+    layout = Layout(1000.0, X)
+    d = Detections(np.arange(X.size), T, V)
+    seq = np.arange(X.size)[None, :]
+    got = sequence_nll(layout, d, seq, P, birth=np.array([False]), end=np.array([False]))
+    assert got[0] == pytest.approx(total, rel=1e-12)
+
+
+def test_models_are_chosen_by_name():
+    assert isinstance(make_model('kalman', P), KalmanModel)
+    assert isinstance(make_model('pairwise', P), PairwiseModel)
+    with pytest.raises(ValueError, match='unknown motion model'):
+        make_model('constant_velocity', P)
+
+
+def test_pairwise_cost_hand_computed():
+    """Two detections 100 m apart: the trapezoid travel-time residual and the slowness change."""
+    p = MotionParams(sigma=2.0, length=500.0, stamp_noise=0.1, velocity_noise=0.2)
+    m = PairwiseModel(p)
+    m.grow(1)
+    m.start(np.array([0]), 100.0, np.array([10.0]), np.array([1 / 20]))
+    u1, u2, dx = 1 / 20, 1 / 25, 100.0
+    t2 = 10.0 + dx * (u1 + u2) / 2 + 0.3  # 0.3 s late against the trapezoid
+    nll, d2 = m.cost(m.predict(np.array([0]), 200.0), np.array([t2]), np.array([u2]))
+    vn1, vn2 = (0.2 * u1 * u1) ** 2, (0.2 * u2 * u2) ** 2
+    su2 = (2.0 * u1 * u2) ** 2
+    var_t = 2 * 0.1**2 + dx * dx * (vn1 + vn2) / 4 + su2 * dx**3 / (6 * 500.0)
+    var_u = vn1 + vn2 + 2 * su2 * (1 - math.exp(-dx / 500.0))
+    want_d2 = 0.3**2 / var_t + (u2 - u1) ** 2 / var_u
+    assert d2[0] == pytest.approx(want_d2, rel=1e-9)
+    assert nll[0] == pytest.approx(
+        0.5 * (want_d2 + math.log(var_t * var_u)) + math.log(2 * math.pi), rel=1e-9
+    )
