@@ -103,6 +103,9 @@ def make_messages(store):
                 sensor_ids=np.array([3, 7], dtype=np.uint32),
                 sensor_names=['s3', 's7'],
                 positions=np.array([10.0, 510.0]),
+                lane_counts=np.array([2, 3], dtype=np.uint16),
+                entry_positions=np.array([300.0]),
+                exit_positions=np.array([], dtype=np.float64),
             ),
         )
     ]
@@ -113,7 +116,14 @@ def make_messages(store):
                 '/road/sensors/s3/detections',
                 'road_sensor_msgs/msg/Detection',
                 VOLATILE,
-                det_t(header=header(100 + i), sensor_id=3, position=10.0, velocity=20.0 + i),
+                det_t(
+                    header=header(100 + i),
+                    sensor_id=3,
+                    position=10.0,
+                    velocity=20.0 + i,
+                    lane=i - 1,
+                    length=4.5 + i,
+                ),
             )
         )
     out.append(

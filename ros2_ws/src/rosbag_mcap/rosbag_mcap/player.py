@@ -17,6 +17,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import rclpy
@@ -35,6 +36,8 @@ from mlkm_ros.params import (
     declare_strings,
 )
 from mlkm_ros.publishing import PublishTimeout, ReliablePublisher
+from rosbag_mcap.definitions import DefinitionCache
+from rosbag_mcap.migrate import Migration, MigrationError, needs_migration
 from rosbag_mcap.ros_glue import (
     EXIT_BAD_PARAMETER,
     EXIT_OK,
@@ -61,6 +64,8 @@ class _Output:
     sender: ReliablePublisher  # publishes with back-pressure (mlkm_ros.publishing)
     reliable: bool
     latched: bool
+    # recorded with another definition of its type: converts each payload (rosbag_mcap.migrate)
+    migrate: Callable[[bytes], bytes] | None = None
 
 
 def parse_remaps(rules: tuple[str, ...]) -> dict[str, str]:
@@ -156,6 +161,7 @@ class BagPlayer(Node):
             self.get_logger().warning(problem)
         self._stop = threading.Event()
         self._outputs: dict[str, _Output] = {}
+        definitions = DefinitionCache()
         for info in self._reader.topics.values():
             if not selection.selects(info.name):
                 continue
@@ -163,7 +169,8 @@ class BagPlayer(Node):
                 continue
             try:
                 msg_type = import_message_type(info.type)
-            except ImportError as exc:
+                migrate = self._migration(info.name, info.type, msg_type, definitions)
+            except (ImportError, MigrationError) as exc:
                 self.get_logger().warning(f'not playing {info.name}: {exc}')
                 continue
             spec = replay_qos(info.offered_qos, info.message_count)
@@ -177,6 +184,7 @@ class BagPlayer(Node):
                 ReliablePublisher(publisher, self.context, self._stop),
                 qos.reliability == ReliabilityPolicy.RELIABLE,
                 qos.durability == DurabilityPolicy.TRANSIENT_LOCAL,
+                migrate,
             )
         if not self._outputs:
             raise RefusedError(
@@ -197,6 +205,23 @@ class BagPlayer(Node):
         self.exit_status = EXIT_OK
         self.done = Future()
         self._thread = threading.Thread(target=self._run, name='playback', daemon=True)
+
+    def _migration(
+        self, topic: str, type_name: str, msg_type: type, definitions: DefinitionCache
+    ) -> Migration | None:
+        """A converter when ``topic`` was recorded with another field layout of its type."""
+        recorded = self._reader.definition(topic)
+        try:
+            installed = definitions.full_text(type_name)
+        except Exception:  # noqa: BLE001 (no installed .msg text: play the bytes as they are)
+            return None
+        if not needs_migration(recorded, installed, type_name):
+            return None
+        self.get_logger().warning(
+            f'{topic} was recorded with another definition of {type_name}: its messages are '
+            'converted to the installed one (fields it lacks get their defaults)'
+        )
+        return Migration(recorded, type_name, msg_type)
 
     # -- playback thread
 
@@ -278,6 +303,13 @@ class BagPlayer(Node):
 
     def _publish(self, output: _Output, data: bytes) -> None:
         payload = data if isinstance(data, bytes) else bytes(data)
+        if output.migrate is not None:
+            try:
+                payload = output.migrate(payload)
+            except MigrationError as exc:
+                self.publish_failures += 1
+                self.get_logger().error(f'dropped a message on {output.name}: {exc}')
+                return
         try:
             if output.sender.publish(payload):
                 self.played += 1

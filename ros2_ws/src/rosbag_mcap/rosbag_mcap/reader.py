@@ -273,6 +273,15 @@ class BagReader:
     def files(self) -> list[Path]:
         return [f.path for f in self._files]
 
+    def definition(self, topic: str) -> str:
+        """The full message definition ``topic`` was recorded with ('' when unknown)."""
+        for index in self._files:
+            for channel in index.channels.values():
+                schema = index.schemas.get(channel.schema_id)
+                if channel.topic == topic and schema is not None and schema.data:
+                    return bytes(schema.data).decode('utf-8', errors='replace')
+        return ''
+
     @property
     def complete(self) -> bool:
         """True when every file was read through its summary (nothing known to be missing)."""
