@@ -45,8 +45,8 @@ def _normal(name: str) -> str:
     return f'{parts[0]}/msg/{parts[-1]}' if len(parts) == 2 else name
 
 
-def field_layout(full_text: str, type_name: str) -> dict[str, Any]:
-    """Field names and types of the type and its dependencies, comments ignored."""
+def parse_definitions(full_text: str, type_name: str) -> dict[str, Any]:
+    """rosbags type entries of the type and its dependencies, parsed from a full definition."""
     from rosbags.typesys import get_types_from_msg
 
     types: dict[str, Any] = {}
@@ -57,6 +57,12 @@ def field_layout(full_text: str, type_name: str) -> dict[str, Any]:
             raise MigrationError(
                 f'cannot parse the recorded definition of {name}: {exc}'
             ) from None
+    return types
+
+
+def field_layout(full_text: str, type_name: str) -> dict[str, Any]:
+    """Field names and types of the type and its dependencies, comments ignored."""
+    types = parse_definitions(full_text, type_name)
     return {name: fields for name, (_consts, fields) in types.items()}
 
 
@@ -72,19 +78,12 @@ class Migration:
     installed type's CDR bytes."""
 
     def __init__(self, recorded_text: str, type_name: str, msg_type: type) -> None:
-        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+        from rosbags.typesys import Stores, get_typestore
 
         self._type_name = _normal(type_name)
         self._msg_type = msg_type
         self._store = get_typestore(Stores.EMPTY)
-        types: dict[str, Any] = {}
-        for name, text in split_definitions(recorded_text, type_name).items():
-            try:
-                types.update(get_types_from_msg(text, name))
-            except Exception as exc:  # noqa: BLE001
-                raise MigrationError(
-                    f'cannot parse the recorded definition of {name}: {exc}'
-                ) from None
+        types = parse_definitions(recorded_text, type_name)
         self._store.register(types)
         self.dropped: set[str] = set()
 
