@@ -18,6 +18,12 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import nnls
 
+from mlkm_core.associators.attributes import (
+    AttributeParams,
+    Attributes,
+    estimate_attributes,
+    has_attributes,
+)
 from mlkm_core.associators.likelihood import sequence_nll, track_sequences
 from mlkm_core.associators.linking import link, relabel
 from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, MotionParams
@@ -179,8 +185,23 @@ def fit_motion(
 
 
 def estimate_params(layout: Layout, d: Detections) -> MotionParams:
-    """Self-calibration: pass 1 with generic parameters, then moments, then maximum likelihood."""
+    """Self-calibration: pass 1 with generic parameters, then moments, then maximum likelihood.
+
+    With lane or length reported, pass 1 uses them with generic parameters, their own
+    parameters are estimated from its links (``attributes.estimate_attributes``), and a second
+    pairwise pass with everything calibrated gives the tracks of the final estimates.
+    """
     base = MotionParams()
+    with_attributes = has_attributes(d)
+    if with_attributes:
+        base = replace(base, attributes=Attributes(layout, d, AttributeParams()))
     raw = link(layout, d, base, 'pairwise')
     p = calibrate(layout, d, raw, base)
+    if with_attributes:
+        ap = estimate_attributes(layout, d, relabel(raw))
+        p = replace(p, attributes=Attributes(layout, d, ap))
+        raw = link(layout, d, p, 'pairwise')
+        p = calibrate(layout, d, raw, p)
+        ap = estimate_attributes(layout, d, relabel(raw))
+        p = replace(p, attributes=Attributes(layout, d, ap))
     return fit_motion(layout, d, relabel(raw), p)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from mlkm_core.associators.attributes import AttributeState
 from mlkm_core.associators.motion import KalmanModel, MotionParams
 from mlkm_core.types import Detections, Layout
 
@@ -27,10 +28,18 @@ class SequenceState:
     last: np.ndarray  # sensor of the last detection, -1 before the first
     first_sensor: np.ndarray  # sensor of the first detection
     count: np.ndarray  # detections so far
+    attr: AttributeState | None = None  # lane and length state (None: not used)
 
     def take(self, rows: np.ndarray) -> SequenceState:
         """The state of the given rows (repeats allowed), in that order."""
-        return SequenceState(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})
+        return SequenceState(
+            **{
+                f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[rows]
+                for f in fields(self)
+                if f.name != 'attr'
+            },
+            attr=None if self.attr is None else self.attr.take(rows),
+        )
 
 
 def _filter(
@@ -45,14 +54,20 @@ def _filter(
     """Run the filters of every row over the columns of ``seqs`` (see ``sequence_nll``)."""
     n_seq, width = seqs.shape
     m = KalmanModel(params, rows)
+    att = params.attributes
+    att = att.tracker(accumulate=True) if att is not None and att.active else None
     if state is None:
         m.grow(n_seq)
+        if att is not None:
+            att.grow(n_seq)
         out = np.zeros(n_seq)
         last = np.full(n_seq, -1, dtype=np.int64)
         first_sensor = np.zeros(n_seq, dtype=np.int64)
         count = np.zeros(n_seq, dtype=np.int64)
     else:
         m.load(state.x, state.mean, state.cov)
+        if att is not None:
+            att.load(state.attr)
         out, last = state.out.copy(), state.last.copy()
         first_sensor, count = state.first_sensor.copy(), state.count.copy()
     count = count + (seqs >= 0).sum(axis=1)
@@ -71,6 +86,8 @@ def _filter(
         if first.any():
             r0 = live[first]
             m.start(r0, x[first], t[first], u[first])
+            if att is not None:
+                att.start(r0, det[first])
             out[r0] += np.where(birth[r0], params.new_cost, 0.0)
             first_sensor[r0] = s[first]
         nxt = ~first
@@ -79,10 +96,15 @@ def _filter(
             pred = m.predict(r1, x[nxt])
             nll, d2 = m.cost(pred, t[nxt], u[nxt])
             nll = nll - 0.5 * np.maximum(d2 - cap, 0.0)
+            if att is not None:
+                nll = nll + att.cost(r1, det[nxt])
+                att.update(r1, det[nxt])
             out[r1] += nll + (s[nxt] - last[r1] - 1) * params.miss_cost
             m.update(pred, t[nxt], u[nxt])
         last[live] = s
-    return SequenceState(m.x, m.mean, m.cov, out, last, first_sensor, count)
+    return SequenceState(
+        m.x, m.mean, m.cov, out, last, first_sensor, count, None if att is None else att.state
+    )
 
 
 def sequence_state(

@@ -123,6 +123,8 @@ def link(
     per_sensor = by_sensor(detections, n_s)
     labels = np.full(len(detections), -1, dtype=np.int64)
     m = make_model(model, params)
+    att = params.attributes
+    att = att.tracker(accumulate=model != 'pairwise') if att is not None and att.active else None
     last_sensor = np.zeros(0, dtype=np.int64)
     n_tracks = 0
     u_all = 1.0 / detections.velocity
@@ -138,6 +140,8 @@ def link(
             r, c = gate_pairs(centre, half, t)
             if r.size:
                 nll, d2 = m.cost(pred.take(r), t[c], u[c])
+                if att is not None:
+                    nll = nll + att.cost(active[r], idx[c])
                 skipped = s - 1 - last_sensor[active[r]]
                 w = nll + skipped * params.miss_cost - params.miss_cost - params.new_cost
                 w = np.where(d2 <= params.gate, w, 0.0)
@@ -145,6 +149,8 @@ def link(
                 if mr.size:
                     tr = active[mr]
                     m.update(pred.take(mr), t[mc], u[mc])
+                    if att is not None:
+                        att.update(tr, idx[mc])
                     last_sensor[tr] = s
                     labels[idx[mc]] = tr
                     matched_d = mc
@@ -155,5 +161,8 @@ def link(
             m.grow(new.size)
             last_sensor = np.concatenate([last_sensor, np.full(new.size, s)])
             m.start(ids, x, t[new], u[new])
+            if att is not None:
+                att.grow(new.size)
+                att.start(ids, idx[new])
             labels[idx[new]] = ids
     return labels

@@ -29,10 +29,13 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
-from typing import ClassVar
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from mlkm_core.associators.attributes import Attributes
 
 LOG2PI = math.log(2.0 * math.pi)
 FLOOR_T = 1e-3  # [s] floor of sigma_t (paper mode has exact stamps)
@@ -51,6 +54,8 @@ class MotionParams:
     clutter_density: float = 1e-3  # false alarms per sensor per second per (s/m) of slowness
     gate: float = 36.0  # chi-square gate on the normalised innovation (6 sigma)
     max_skip: int = 3  # a track may miss this many consecutive sensors
+    # lane and length evidence of the detections being associated (None: not used)
+    attributes: Attributes | None = field(default=None, compare=False, repr=False)
 
     @property
     def miss_cost(self) -> float:
