@@ -1,4 +1,4 @@
-"""Fixtures shared by every test tier (owned by the setup helper).
+"""Fixtures shared by every test tier.
 
 The environment: tests need the one `source env.sh` gives (venv, ROS underlay, the
 ``ros2_ws/install`` overlay). ``make test`` sources it; if pytest was started without it, this
@@ -16,7 +16,7 @@ Fixtures
                         ``MLKM_DDS_LOOPBACK=0``), unbuffered Python output; give it to any
                         subprocess you start.
 ``ros_process``      -> factory ``ros_process(package, executable, *args, env=None,
-                        **popen_kwargs) -> RosProcess``: starts
+                        cwd=None) -> Proc`` (mlkm_experiments.launch.Proc): starts
                         ``ros2_ws/install/<package>/lib/<package>/<executable>`` in its own
                         process group with ``ros_env`` (``env`` entries are added to it), output
                         to a log file (``.output()``, ``.log_path``). Every process is stopped at
@@ -36,7 +36,6 @@ Markers (pytest.ini): ``ros`` (starts DDS participants), ``slow``.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -107,52 +106,6 @@ def ros_env(ros_domain_id: int) -> dict[str, str]:
     return env
 
 
-class RosProcess:
-    """One started executable: ``proc`` (Popen), ``log_path``, ``output()``, ``stop()``."""
-
-    def __init__(self, proc: subprocess.Popen, log_path: Path, name: str):
-        self.proc = proc
-        self.log_path = log_path
-        self.name = name
-
-    @property
-    def pid(self) -> int:
-        return self.proc.pid
-
-    def output(self) -> str:
-        """Everything the process wrote so far (stdout and stderr interleaved)."""
-        try:
-            return self.log_path.read_text(errors='replace')
-        except FileNotFoundError:
-            return ''
-
-    def wait_for_output(self, text: str, timeout: float = 10.0) -> bool:
-        """Wait until ``text`` appears in the output; False on timeout or early exit."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if text in self.output():
-                return True
-            if self.proc.poll() is not None:
-                return text in self.output()
-            time.sleep(0.05)
-        return False
-
-    def stop(self, timeout: float = 5.0) -> int:
-        """SIGINT the process group (as Ctrl-C would), then SIGTERM, then SIGKILL."""
-        from mlkm_experiments.launch import stop_process_group  # after the env.sh re-exec above
-
-        status = stop_process_group(self.proc, timeout)
-        _killpg(self.proc.pid, signal.SIGKILL)  # anything left over in the group
-        return status
-
-
-def _killpg(pgid: int, sig: int) -> None:
-    try:
-        os.killpg(pgid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
 def executable_path(package: str, executable: str) -> Path:
     """``ros2_ws/install/<package>/lib/<package>/<executable>``, as ``ros2 run`` finds it."""
     path = INSTALL / package / 'lib' / package / executable
@@ -166,39 +119,32 @@ def executable_path(package: str, executable: str) -> Path:
 
 
 @pytest.fixture
-def ros_process(ros_env: dict[str, str], tmp_path: Path) -> Iterator[Callable[..., RosProcess]]:
-    started: list[RosProcess] = []
+def ros_process(ros_env: dict[str, str], tmp_path: Path) -> Iterator[Callable[..., object]]:
+    from mlkm_experiments.launch import Proc  # after the env.sh re-exec above
+
+    started: list[Proc] = []
 
     def start(
         package: str,
         executable: str,
         *args: str,
         env: dict[str, str] | None = None,
-        **popen_kwargs,
-    ) -> RosProcess:
-        path = executable_path(package, executable)
+        cwd: Path | None = None,
+    ) -> Proc:
+        argv = [str(executable_path(package, executable)), *map(str, args)]
         log_path = tmp_path / f'{executable}-{len(started)}.log'
-        log = open(log_path, 'wb')  # noqa: SIM115 - closed right after Popen has it
-        kwargs = dict(stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, cwd=tmp_path)
-        kwargs.update(popen_kwargs)
-        try:
-            proc = subprocess.Popen(
-                [str(path), *map(str, args)],
-                env={**ros_env, **(env or {})},
-                start_new_session=True,
-                **kwargs,
-            )
-        finally:
-            log.close()
-        rp = RosProcess(proc, log_path, f'{package}/{executable}')
-        started.append(rp)
-        return rp
+        proc = Proc(
+            f'{package}/{executable}', argv, {**ros_env, **(env or {})}, log_path,
+            cwd=cwd or tmp_path,
+        )  # fmt: skip
+        started.append(proc)
+        return proc
 
     yield start
-    for rp in reversed(started):
-        code = rp.stop()
-        tail = '\n'.join(rp.output().splitlines()[-30:])
-        print(f'--- {rp.name} (pid {rp.pid}, exit {code}), end of {rp.log_path}:\n{tail}')
+    for proc in reversed(started):
+        code = proc.stop(5.0)
+        tail = '\n'.join(proc.output().splitlines()[-30:])
+        print(f'--- {proc.name} (pid {proc.pid}, exit {code}), end of {proc.log_path}:\n{tail}')
 
 
 @pytest.fixture

@@ -141,7 +141,7 @@ def test_live_equals_offline_and_replay_equals_live(
 
     # Record -> bag -> replay into fresh association and scorer nodes.
     wait_idle(recorder.pid, timeout=60.0)
-    assert recorder.stop(timeout=30.0) == 0
+    assert recorder.stop(30.0) == 0
     assert (bag / 'metadata.yaml').is_file()
     assoc.stop()
     scorer.stop()

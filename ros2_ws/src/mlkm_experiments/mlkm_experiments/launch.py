@@ -1,4 +1,4 @@
-"""Helpers for the scripts that run the node graph (demo, replay, live benchmark).
+"""Helpers for everything that runs the node graph: demo, replay, benchmarks and the tests.
 
 They start the installed executables as separate processes, exactly as a user would with
 ``ros2 run`` in separate terminals, on loopback DDS and a ROS domain of their own, and stop
@@ -85,7 +85,13 @@ class Proc:
     """One started executable, in its own process group, output to a log file."""
 
     def __init__(
-        self, name: str, argv: list[str], env: dict[str, str], log_path: Path, echo: bool = False
+        self,
+        name: str,
+        argv: list[str],
+        env: dict[str, str],
+        log_path: Path,
+        echo: bool = False,
+        cwd: Path | None = None,
     ) -> None:
         self.name = name
         self.argv = argv
@@ -95,6 +101,7 @@ class Proc:
             self.proc = subprocess.Popen(
                 argv,
                 env=env,
+                cwd=cwd,
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=subprocess.STDOUT,
@@ -102,6 +109,10 @@ class Proc:
             )
         if echo:
             print(f'started {name} (pid {self.proc.pid}): {" ".join(argv)}', flush=True)
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
 
     def poll(self) -> int | None:
         return self.proc.poll()
@@ -111,6 +122,17 @@ class Proc:
             return self.log_path.read_text(errors='replace')
         except FileNotFoundError:
             return ''
+
+    def wait_for_output(self, text: str, timeout: float = 10.0) -> bool:
+        """Wait until ``text`` appears in the output; False on timeout or early exit."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.output():
+                return True
+            if self.proc.poll() is not None:
+                return text in self.output()
+            time.sleep(0.05)
+        return False
 
     def wait(self, timeout: float) -> int | None:
         try:
@@ -123,8 +145,11 @@ class Proc:
         return wait_idle(self.proc.pid, timeout)
 
     def stop(self, grace: float = 10.0) -> int:
-        """SIGINT (as Ctrl-C), then SIGTERM, then SIGKILL, to the process group."""
-        return stop_process_group(self.proc, grace)
+        """SIGINT (as Ctrl-C), then SIGTERM, then SIGKILL, to the process group; whatever
+        is left of the group after the leader exited is killed too."""
+        status = stop_process_group(self.proc, grace)
+        _killpg(self.proc.pid, signal.SIGKILL)
+        return status
 
 
 def stop_process_group(proc: subprocess.Popen, grace: float = 10.0) -> int:
