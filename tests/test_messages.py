@@ -45,10 +45,13 @@ def track(track_id: int) -> object:
     Track = msg_class('Track')
     return Track(
         track_id=track_id,
+        status=Track.STATUS_FINAL,
         sensor_ids=[3, 7, U32_MAX],
         stamps=[Time(sec=10, nanosec=1), Time(sec=12, nanosec=999_999_999), Time(sec=15)],
         velocities=[48.25, -0.5, 61.125],
         positions=[120.0, 480.5, 999.875],
+        lanes=[0, 2, -1],
+        lengths=[4.5, 16.25, 0.5],
     )
 
 
@@ -56,7 +59,14 @@ def filled(name: str):
     """An instance of ``name`` with a non-default value in every field."""
     cls = msg_class(name)
     if name == 'Detection':
-        return cls(header=header(), sensor_id=42, position=1234.5, velocity=-13.75)
+        return cls(
+            header=header(),
+            sensor_id=42,
+            position=1234.5,
+            velocity=-13.75,
+            lane=2,
+            length=12.5,
+        )
     if name == 'SensorLayout':
         return cls(
             header=header(frame='road_é'),
@@ -64,6 +74,9 @@ def filled(name: str):
             sensor_ids=[1, 5, U32_MAX],
             sensor_names=['s01', 'bridge_north', ''],
             positions=[10.0, 2500.25, 4999.5],
+            lane_counts=[3, 2, 65535],
+            entry_positions=[1200.0],
+            exit_positions=[2300.5, 4300.0],
         )
     if name == 'EpisodeInfo':
         return cls(
@@ -84,12 +97,15 @@ def filled(name: str):
             target_id=cls.FALSE_ALARM,
             false_alarm=True,
             true_velocity=55.5,
+            lane=1,
+            vehicle_id='v17',
         )
     if name == 'Track':
         return track(17)
     if name == 'TrackArray':
         return cls(
             header=header(),
+            mode=cls.MODE_STREAM,
             episode_id=11,
             method='mlkm',
             final=True,
@@ -99,6 +115,9 @@ def filled(name: str):
             unassigned_sensor_ids=[8, 9],
             unassigned_stamps=[Time(sec=1), Time(sec=2)],
             unassigned_velocities=[33.0, 70.5],
+            unassigned_lanes=[1, -1],
+            unassigned_lengths=[9.25, 7.5],
+            committed_until=Time(sec=3, nanosec=7),
             solve_time=0.0125,
         )
     if name == 'AssociationScore':
@@ -255,11 +274,11 @@ def test_every_field_has_its_own_comment_with_a_unit(name):
 @pytest.mark.parametrize('name', MESSAGES)
 def test_parallel_array_counts_are_right(name):
     """A comment that says 'the N arrays are parallel' counts the message's array fields."""
-    words = {'two': 2, 'three': 3, 'four': 4, 'five': 5}
+    words = {'two': 2, 'three': 3, 'four': 4, 'five': 5, 'six': 6}
     text = ' '.join((MSG_DIR / f'{name}.msg').read_text().lower().replace('#', ' ').split())
     fields = msg_class(name).get_fields_and_field_types()
-    claims = re.findall(r'the (\w+) (?:(\w+)\* )?arrays are parallel', text)
-    assert claims or name not in ('Track', 'SensorLayout', 'TrackArray')
+    claims = re.findall(r'the (\w+) (?:(\w+)\* )?(?:per-detection )?arrays are parallel', text)
+    assert claims or name not in ('Track', 'TrackArray')
     for word, prefix in claims:
         arrays = [
             f for f, t in fields.items() if t.startswith('sequence<') and f.startswith(prefix)

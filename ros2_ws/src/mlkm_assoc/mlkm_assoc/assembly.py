@@ -7,9 +7,13 @@ strictly in segment order per episode, for the solver (:mod:`mlkm_assoc.solver`)
 
 Policies (README "Association node"):
 
-* Validation: a detection's velocity and stamp must lie inside the physical
-  :class:`~mlkm_core.bounds.Bounds` (node parameters), its sensor id must be in the layout
-  and its position match that sensor's. Refused detections never count towards completion.
+* Validation: a detection's velocity, stamp and measured length (NaN = not measured) must
+  lie inside the physical :class:`~mlkm_core.bounds.Bounds` (node parameters), its sensor
+  id must be in the layout and its position match that sensor's, its lane be -1 (unknown)
+  or, where the layout gives the sensor's lane count, below it. A duplicate is a second
+  detection with the same (sensor, lane, stamp), or, lane unknown, the same (sensor, stamp,
+  velocity): two vehicles passing one station in different lanes within the same
+  nanosecond are both kept. Refused detections never count towards completion.
 * Episode assignment: a detection belongs to the episode whose [start, end] window (from
   EpisodeInfo) holds its stamp. Detections whose episode is not known yet are held (topics
   are not ordered against each other) and placed when the EpisodeInfo arrives; held longer
@@ -41,6 +45,7 @@ Policies (README "Association node"):
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Callable
 
@@ -49,7 +54,7 @@ import numpy as np
 from mlkm_assoc.episodes import AssociationConfig, Episode, Job, Part
 from mlkm_core.bounds import REASONS as BOUNDS_REASONS
 from mlkm_core.bounds import Bounds
-from mlkm_core.types import Layout
+from mlkm_core.types import UNKNOWN_LANE, Layout
 
 __all__ = ['REJECT_REASONS', 'Assembler', 'AssociationConfig', 'Job', 'Part']
 
@@ -58,6 +63,7 @@ REJECT_REASONS = (
     *BOUNDS_REASONS,
     'unknown_sensor',
     'position_mismatch',
+    'lane_out_of_range',
     'duplicate',
     'outside_episode',
     'after_episode_final',
@@ -67,7 +73,8 @@ REJECT_REASONS = (
 POSITION_TOLERANCE = 1e-3
 NS_PER_S = 1_000_000_000
 
-Raw = tuple[int, int, float, float, float]  # sensor id, stamp [ns], position, velocity, t_rx
+#: sensor id, stamp [ns], position, velocity, t_rx, lane, length
+Raw = tuple[int, int, float, float, float, int, float]
 Info = tuple[int, int, int]  # num_targets, start [ns], end [ns]
 
 
@@ -88,6 +95,7 @@ class Assembler:
         self._layout_stamp = -1
         self._index: dict[int, int] = {}
         self._positions: list[float] = []
+        self._lane_counts: tuple[int, ...] | None = None
         self._pending_layout: list[Raw] = []
         self._pending_episode: list[Raw] = []
         self.rejected: Counter[str] = Counter()
@@ -127,15 +135,24 @@ class Assembler:
         self._config = config
 
     # --- inputs ---------------------------------------------------------------------------
-    def set_layout(self, layout: Layout, now: float, published_ns: int = 0) -> bool:
+    def set_layout(
+        self,
+        layout: Layout,
+        now: float,
+        published_ns: int = 0,
+        lane_counts: tuple[int, ...] | None = None,
+    ) -> bool:
         """Use ``layout`` from now on; returns False when it is the current one.
 
         ``published_ns``: the message's publication stamp; a layout published after the
         current run began starts a new run even when its content is the same (the simulator
-        restarted).
+        restarted). ``lane_counts``: lanes per sensor (None: unknown).
         """
         old = self.layout
-        if old is not None and _same_layout(old, layout):
+        lane_counts = None if lane_counts is None else tuple(int(n) for n in lane_counts)
+        if lane_counts is not None and len(lane_counts) != layout.n_sensors:
+            raise ValueError(f'{len(lane_counts)} lane counts for {layout.n_sensors} sensors')
+        if old is not None and _same_layout(old, layout) and lane_counts == self._lane_counts:
             if published_ns == self._layout_stamp or published_ns <= self._run_stamp:
                 return False
         self._layout_stamp = published_ns
@@ -144,6 +161,7 @@ class Assembler:
         self.layout = layout
         self._index = {int(s): i for i, s in enumerate(layout.sensor_ids)}
         self._positions = [float(p) for p in layout.positions]
+        self._lane_counts = lane_counts
         self._last_stamp = [-(2**63)] * layout.n_sensors
         for episode_id in sorted(self._infos):
             self._ensure_episode(episode_id, now)
@@ -194,24 +212,36 @@ class Assembler:
             self._place(*raw)
 
     def add_detection(
-        self, sensor_id: int, stamp_ns: int, position: float, velocity: float, now: float
+        self,
+        sensor_id: int,
+        stamp_ns: int,
+        position: float,
+        velocity: float,
+        now: float,
+        lane: int = UNKNOWN_LANE,
+        length: float = math.nan,
     ) -> None:
-        """One received Detection message. Cheap: no numpy, a few dict/list operations."""
+        """One received Detection message (``lane`` -1 and ``length`` NaN: unknown). Cheap:
+        no numpy, a few dict/list operations."""
         self.received += 1
         if self.first_rx is None:
             self.first_rx = now
         self.last_rx = now
         if self.layout is None:
-            reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity)
+            reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity, length)
+            if reason is None and lane < UNKNOWN_LANE:
+                reason = 'lane_out_of_range'
             if reason is not None:
-                self._reject(reason, sensor_id, stamp_ns, velocity)
+                self._reject(reason, sensor_id, stamp_ns, velocity, lane, length)
             elif self._held() >= self._config.max_buffered:
-                self._reject('buffer_full', sensor_id, stamp_ns, velocity)
+                self._reject('buffer_full', sensor_id, stamp_ns, velocity, lane, length)
             else:
                 self.handled['before_layout'] += 1
-                self._pending_layout.append((sensor_id, stamp_ns, position, velocity, now))
+                self._pending_layout.append(
+                    (sensor_id, stamp_ns, position, velocity, now, lane, length)
+                )
             return
-        self._place(sensor_id, stamp_ns, position, velocity, now)
+        self._place(sensor_id, stamp_ns, position, velocity, now, lane, length)
 
     def tick(self, now: float) -> None:
         """Timeouts: held detections without an episode, episodes that stopped short."""
@@ -220,7 +250,7 @@ class Assembler:
             keep = []
             for raw in self._pending_episode:
                 if now - raw[4] > timeout:
-                    self._reject('outside_episode', raw[0], raw[1], raw[3])
+                    self._reject('outside_episode', raw[0], raw[1], raw[3], raw[5], raw[6])
                 else:
                     keep.append(raw)
             self._pending_episode = keep
@@ -264,13 +294,33 @@ class Assembler:
     def _held(self) -> int:
         return len(self._pending_layout) + len(self._pending_episode)
 
-    def _reject(self, reason: str, sensor_id: int, stamp_ns: int, velocity: float) -> None:
+    def _reject(
+        self,
+        reason: str,
+        sensor_id: int,
+        stamp_ns: int,
+        velocity: float,
+        lane: int = UNKNOWN_LANE,
+        length: float = math.nan,
+    ) -> None:
         self.rejected[reason] += 1
         if self._on_reject is not None:
-            detail = self.bounds.describe(reason) if reason in BOUNDS_REASONS else reason
+            if reason in BOUNDS_REASONS:
+                detail = self.bounds.describe(reason)
+            elif reason == 'lane_out_of_range':
+                s = self._index.get(sensor_id)
+                known = self._lane_counts is not None and s is not None
+                detail = (
+                    f'lane must be -1 (unknown) or in [0, {self._lane_counts[s] - 1}]'
+                    if known
+                    else 'lane must be -1 (unknown) or >= 0'
+                )
+            else:
+                detail = reason
             self._on_reject(
                 reason,
-                f'sensor {sensor_id}, stamp {stamp_ns} ns, velocity {velocity!r} m/s: {detail}',
+                f'sensor {sensor_id}, lane {lane}, stamp {stamp_ns} ns, velocity {velocity!r} '
+                f'm/s, length {length!r} m: {detail}',
             )
 
     def _is_new_run(self, episode_id: int, info: Info, started: bool, published_ns: int) -> bool:
@@ -330,37 +380,48 @@ class Assembler:
         return None
 
     def _place(
-        self, sensor_id: int, stamp_ns: int, position: float, velocity: float, now: float
+        self,
+        sensor_id: int,
+        stamp_ns: int,
+        position: float,
+        velocity: float,
+        now: float,
+        lane: int = UNKNOWN_LANE,
+        length: float = math.nan,
     ) -> None:
+        raw = (sensor_id, stamp_ns, position, velocity, now, lane, length)
         s = self._index.get(sensor_id)
         if s is None:
-            self._reject('unknown_sensor', sensor_id, stamp_ns, velocity)
+            self._reject('unknown_sensor', sensor_id, stamp_ns, velocity, lane, length)
             return
-        reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity)
+        reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity, length)
         if reason is None and not abs(position - self._positions[s]) <= POSITION_TOLERANCE:
             reason = 'position_mismatch'
+        if reason is None and not self._lane_ok(s, lane):
+            reason = 'lane_out_of_range'
         ep = self._find_episode(stamp_ns)
         if reason is not None:
             if ep is not None and not ep.finalized:
                 ep.rejected[s] += 1  # announced by ENDED, so not missing
                 ep.last_activity = now
-            self._reject(reason, sensor_id, stamp_ns, velocity)
+            self._reject(reason, sensor_id, stamp_ns, velocity, lane, length)
             return
         if ep is None:
             if self._latest_start is not None and stamp_ns < self._latest_start:
-                self._reject('outside_episode', sensor_id, stamp_ns, velocity)
+                self._reject('outside_episode', sensor_id, stamp_ns, velocity, lane, length)
             elif self._held() >= self._config.max_buffered:
-                self._reject('buffer_full', sensor_id, stamp_ns, velocity)
+                self._reject('buffer_full', sensor_id, stamp_ns, velocity, lane, length)
             else:
-                self._pending_episode.append((sensor_id, stamp_ns, position, velocity, now))
+                self._pending_episode.append(raw)
             return
         if ep.finalized:
-            self._reject('after_episode_final', sensor_id, stamp_ns, velocity)
+            self._reject('after_episode_final', sensor_id, stamp_ns, velocity, lane, length)
             return
         ep.last_activity = now
-        if stamp_ns in ep.seen[s]:
+        key = (stamp_ns, lane) if lane != UNKNOWN_LANE else (stamp_ns, lane, velocity)
+        if key in ep.seen[s]:
             ep.rejected[s] += 1
-            self._reject('duplicate', sensor_id, stamp_ns, velocity)
+            self._reject('duplicate', sensor_id, stamp_ns, velocity, lane, length)
             return
         if stamp_ns < self._last_stamp[s]:
             self.handled['out_of_order'] += 1
@@ -369,9 +430,11 @@ class Assembler:
         stamps = ep.stamps[s]
         if len(stamps) >= ep.num_targets:
             self.handled['excess_at_sensor'] += 1
-        ep.seen[s].add(stamp_ns)
+        ep.seen[s].add(key)
         stamps.append(stamp_ns)
         ep.vels[s].append(velocity)
+        ep.lanes[s].append(lane)
+        ep.lengths[s].append(length)
         ep.accepted += 1
         self.accepted += 1
         if ep.seg_of[s] < ep.next_segment:
@@ -381,6 +444,13 @@ class Assembler:
             self._advance(ep, now)
         elif ep.next_segment == len(ep.segments) and ep.ended is not None:
             self._advance(ep, now)
+
+    def _lane_ok(self, s: int, lane: int) -> bool:
+        if lane == UNKNOWN_LANE:
+            return True
+        if lane < 0:
+            return False
+        return self._lane_counts is None or lane < self._lane_counts[s]
 
     def _job(
         self, ep: Episode, kind: str, parts: tuple[Part, ...], now: float, forced: bool

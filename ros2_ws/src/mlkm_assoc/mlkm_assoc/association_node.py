@@ -56,7 +56,7 @@ class AssociationNode(Node):
             self._config: AssociationConfig = AssociationConfig(**values)
             self._config.bounds()
         except ValueError as exc:
-            raise ParameterError(f'speed and stamp bounds refused: {exc}') from None
+            raise ParameterError(f'speed, stamp and length bounds refused: {exc}') from None
         self._assembler: Assembler = Assembler(self._config, self._submit, self._on_reject)
         self._solver: SolverProcess = SolverProcess(encode)
         self._solve_times: deque[float] = deque(maxlen=STATS_WINDOW)
@@ -134,6 +134,7 @@ class AssociationNode(Node):
     def _on_layout(self, msg: SensorLayout) -> None:
         try:
             layout = conv.layout_from_msg(msg)
+            lane_counts = conv.lane_counts_from_msg(msg)
             wanted = {self.resolve_topic_name(qos.detections_topic(n)) for n in layout.names}
         except Exception as exc:  # noqa: BLE001 - invalid values or sensor names
             self._assembler.rejected['invalid_layout'] += 1
@@ -144,7 +145,7 @@ class AssociationNode(Node):
             return
         runs = self._assembler.runs
         published_ns = conv.time_to_ns(msg.header.stamp)
-        if not self._assembler.set_layout(layout, time.monotonic(), published_ns):
+        if not self._assembler.set_layout(layout, time.monotonic(), published_ns, lane_counts):
             return
         if self._assembler.runs != runs:
             self.get_logger().info('a new layout: a new run of the source begins')
@@ -172,6 +173,8 @@ class AssociationNode(Node):
             msg.position,
             msg.velocity,
             time.monotonic(),
+            msg.lane,
+            conv.detection_length(msg),
         )
 
     def _on_episode(self, msg: EpisodeInfo) -> None:

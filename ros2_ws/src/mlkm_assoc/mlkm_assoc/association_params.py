@@ -13,7 +13,7 @@ from mlkm_ros.params import ParamSpec, positive
 #: Parameters of the node itself, not of the assembly.
 NODE_PARAMS = ('diagnostics_period', 'diagnostics_window', 'warn_rejected_fraction')
 _BOUNDS = Bounds()
-BOUND_NAMES = ('min_speed', 'max_speed', 'min_stamp', 'max_stamp')
+BOUND_NAMES = ('min_speed', 'max_speed', 'min_stamp', 'max_stamp', 'min_length', 'max_length')
 
 
 def _check_method(value: str) -> str | None:
@@ -102,6 +102,23 @@ SPECS = [
         'latest plausible detection stamp; later ones are rejected [s]',
         0.0,
         float(2**31 - 1),
+    ),
+    ParamSpec(
+        'min_length',
+        _BOUNDS.min_length,
+        'shortest plausible measured vehicle length; shorter ones are rejected (a length of '
+        'NaN or 0 means not measured and is accepted) [m]',
+        1e-9,
+        1e6,
+        check=positive,
+    ),
+    ParamSpec(
+        'max_length',
+        _BOUNDS.max_length,
+        'longest plausible measured vehicle length; longer ones are rejected [m]',
+        1e-9,
+        1e6,
+        check=positive,
     ),
     ParamSpec(
         'diagnostics_period', 1.0, 'period of /diagnostics [s]', 0.01, 3600.0, read_only=True

@@ -51,6 +51,8 @@ def encode(result: Result) -> Update:
         labels=result.labels,
         solve_time=result.solve_time,
         stamp_ns=time.time_ns(),
+        lanes=result.lanes,
+        lengths=result.lengths,
     )
     labels = result.labels
     return Update(

@@ -12,7 +12,7 @@ import numpy as np
 
 from mlkm_core.associators.base import AssociatorConfig
 from mlkm_core.bounds import Bounds
-from mlkm_core.types import Layout, segments
+from mlkm_core.types import UNKNOWN_LANE, Layout, segments
 
 _DEFAULT_BOUNDS = Bounds()
 
@@ -32,22 +32,40 @@ class AssociationConfig:
     max_speed: float = _DEFAULT_BOUNDS.max_speed  # [m/s]
     min_stamp: float = _DEFAULT_BOUNDS.min_stamp  # [s]
     max_stamp: float = _DEFAULT_BOUNDS.max_stamp  # [s]
+    min_length: float = _DEFAULT_BOUNDS.min_length  # [m]
+    max_length: float = _DEFAULT_BOUNDS.max_length  # [m]
 
     def associator_config(self) -> AssociatorConfig:
         return AssociatorConfig(segment_size=self.segment_size, seed=self.seed)
 
     def bounds(self) -> Bounds:
         """The physical bounds of a detection; raises ValueError when they contradict."""
-        return Bounds(self.min_speed, self.max_speed, self.min_stamp, self.max_stamp)
+        return Bounds(
+            self.min_speed,
+            self.max_speed,
+            self.min_stamp,
+            self.max_stamp,
+            self.min_length,
+            self.max_length,
+        )
 
 
 @dataclass(frozen=True)
 class Part:
-    """Detections of one segment, sorted by (sensor index, stamp)."""
+    """Detections of one segment, sorted by (sensor index, stamp, lane)."""
 
     sensor_index: np.ndarray  # int64
     stamps_ns: np.ndarray  # int64
     velocities: np.ndarray  # float64
+    lanes: np.ndarray | None = None  # int64, -1 = unknown (default: all unknown)
+    lengths: np.ndarray | None = None  # float64 [m], NaN = unknown (default: all unknown)
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.stamps_ns).size
+        if self.lanes is None:
+            object.__setattr__(self, 'lanes', np.full(n, UNKNOWN_LANE, np.int64))
+        if self.lengths is None:
+            object.__setattr__(self, 'lengths', np.full(n, np.nan))
 
 
 @dataclass(frozen=True)
@@ -96,7 +114,10 @@ class Episode:
                 self.seg_of[s] = e
         self.stamps: list[list[int]] = [[] for _ in range(n)]
         self.vels: list[list[float]] = [[] for _ in range(n)]
-        self.seen: list[set[int]] = [set() for _ in range(n)]
+        self.lanes: list[list[int]] = [[] for _ in range(n)]
+        self.lengths: list[list[float]] = [[] for _ in range(n)]
+        # per sensor: the keys of its detections, (stamp, lane) or (stamp, -1, velocity)
+        self.seen: list[set[tuple]] = [set() for _ in range(n)]
         self.rejected = [0] * n  # messages of this episode refused, per sensor index
         self.accepted = 0
         self.ended: list[int] | None = None  # ENDED counts per sensor index
@@ -133,17 +154,22 @@ class Episode:
     def free(self) -> None:
         """Drop the buffers; the window stays so that late detections are recognised."""
         self.stamps, self.vels, self.seen = [], [], []
+        self.lanes, self.lengths = [], []
 
     def part(self, sensors: list[int]) -> Part:
-        idx, ns, vel = [], [], []
+        idx, ns, vel, lane, size = [], [], [], [], []
         for s in sensors:
-            st, vl = self.stamps[s], self.vels[s]
-            order = sorted(range(len(st)), key=st.__getitem__)
+            st, vl, ln, sz = self.stamps[s], self.vels[s], self.lanes[s], self.lengths[s]
+            order = sorted(range(len(st)), key=lambda i: (st[i], ln[i]))
             idx.extend([s] * len(st))
             ns.extend(st[i] for i in order)
             vel.extend(vl[i] for i in order)
+            lane.extend(ln[i] for i in order)
+            size.extend(sz[i] for i in order)
         return Part(
             np.asarray(idx, dtype=np.int64),
             np.asarray(ns, dtype=np.int64),
             np.asarray(vel, dtype=float),
+            np.asarray(lane, dtype=np.int64),
+            np.asarray(size, dtype=float),
         )

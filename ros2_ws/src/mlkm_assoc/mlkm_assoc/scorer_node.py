@@ -1,7 +1,7 @@
 """``mlkm_assoc scorer_node``: scores each episode's final tracks against ground truth.
 
-Joins the FINAL TrackArray of an episode with its GroundTruth messages on (sensor id, stamp
-in integer ns) and calls the core's one scoring function, ``mlkm_core.metrics.score``.
+Joins the FINAL TrackArray of an episode with its GroundTruth messages on (sensor id, lane,
+stamp in integer ns; lane -1 where unknown) and calls the core's one scoring function, ``mlkm_core.metrics.score``.
 
 * Complete truth: EpisodeInfo ENDED says how many detections each sensor published, and one
   GroundTruth was published for each. The node waits for all of them (truth arriving after
@@ -53,7 +53,7 @@ from road_sensor_msgs.msg import (
 )
 
 NS_PER_S = conv.NS_PER_S
-Key = tuple[int, int]  # (sensor id, stamp ns): the join key
+Key = tuple[int, int, int]  # (sensor id, stamp ns, lane): the join key
 Window = tuple[int, int, int]  # (num_targets, start ns, end ns) of an EpisodeInfo
 
 SPECS = [
@@ -166,6 +166,7 @@ def _check_tracks(msg: TrackArray) -> list[int]:
     if not (len(msg.unassigned_stamps) == len(msg.unassigned_velocities) == n):
         raise ValueError('unassigned_* arrays differ in length')
     stamps.extend(_stamp_ns(t) for t in msg.unassigned_stamps)
+    conv.track_lanes_from_msg(msg)  # lanes/lengths empty or parallel to sensor_ids
     return stamps
 
 
@@ -280,7 +281,7 @@ class ScorerNode(Node):
             if done.window is None or done.window[1] <= stamp <= done.window[2]:
                 self._events['truth_after_score'] += 1
                 return
-        key = (int(msg.sensor_id), stamp)
+        key = (int(msg.sensor_id), stamp, int(msg.lane))
         ep = self._open.get(episode)
         if (
             ep is None or key not in ep.truth
@@ -395,7 +396,7 @@ class ScorerNode(Node):
         """Whether ``truth`` (keys inside the window) holds every ENDED count."""
         if ep.counts is None:
             return False
-        have = Counter(sensor for sensor, _ in truth)
+        have = Counter(key[0] for key in truth)
         return all(have[sensor] >= n for sensor, n in ep.counts.items())
 
     def _try(self, episode: int) -> None:
@@ -416,7 +417,8 @@ class ScorerNode(Node):
         complete = self._complete(ep, truth)
         self._remember(episode, ep)
         ids, stamps, _, labels = conv.tracks_from_msg(tracks)
-        track_of = dict(zip(zip(ids.tolist(), stamps.tolist()), labels.tolist()))
+        lanes, _ = conv.track_lanes_from_msg(tracks)
+        track_of = dict(zip(zip(ids.tolist(), stamps.tolist(), lanes.tolist()), labels.tolist()))
         keys = list(truth)
         index = self._sensor_index
         values = list(truth.values())

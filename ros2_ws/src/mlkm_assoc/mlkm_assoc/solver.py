@@ -46,6 +46,8 @@ class Result:
     error: str | None = None
     started_at: float = 0.0  # monotonic time the solver took the job
     missing: int = 0  # detections ENDED announced that the node never received [-]
+    lanes: np.ndarray | None = None  # lane of each detection, -1 unknown
+    lengths: np.ndarray | None = None  # measured vehicle length [m], NaN unknown
 
 
 class _EpisodeSolve:
@@ -56,19 +58,41 @@ class _EpisodeSolve:
         self.segments_done = 0
 
 
-def _concat(parts: list[Part]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _concat(parts: list[Part]) -> tuple[np.ndarray, ...]:
+    """(sensor_index, stamps_ns, velocities, lanes, lengths) of ``parts`` in order."""
     if not parts:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+        return (
+            np.zeros(0, np.int64),
+            np.zeros(0, np.int64),
+            np.zeros(0),
+            np.zeros(0, np.int64),
+            np.zeros(0),
+        )
     return (
         np.concatenate([p.sensor_index for p in parts]),
         np.concatenate([p.stamps_ns for p in parts]),
         np.concatenate([p.velocities for p in parts]),
+        np.concatenate([p.lanes for p in parts]),
+        np.concatenate([p.lengths for p in parts]),
     )
 
 
+def _keys(si: np.ndarray, ns: np.ndarray, lanes: np.ndarray, vel: np.ndarray) -> list[tuple]:
+    """One key per detection: (sensor index, stamp, lane, velocity) tells apart everything
+    the assembler accepted (a lane-unknown duplicate is refused on sensor, stamp, velocity)."""
+    return list(zip(si.tolist(), ns.tolist(), lanes.tolist(), vel.tolist()))
+
+
 def to_detections(part: Part) -> Detections:
-    """The core's view of a segment: stamps in seconds (float64) from integer ns."""
-    return Detections(part.sensor_index, part.stamps_ns / NS_PER_S, part.velocities)
+    """The core's view of a segment: stamps in seconds (float64) from integer ns, with the
+    lane and measured length of every detection."""
+    return Detections(
+        part.sensor_index,
+        part.stamps_ns / NS_PER_S,
+        part.velocities,
+        lane=part.lanes,
+        length=part.lengths,
+    )
 
 
 def stable_ids(previous: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -130,8 +154,8 @@ class Solver:
             state = self._episodes.pop(job.episode_id, None) or _EpisodeSolve()
         else:  # 'rerun': associate everything again, from scratch
             old = self._episodes.pop(job.episode_id, None) or _EpisodeSolve()
-            si, ns, _ = _concat(old.fed)
-            previous = {(a, b): c for a, b, c in zip(si.tolist(), ns.tolist(), old.ids.tolist())}
+            si, ns, vel, ln, _ = _concat(old.fed)
+            previous = dict(zip(_keys(si, ns, ln, vel), old.ids.tolist()))
             state = _EpisodeSolve()
             labels = None
             for part in job.parts:
@@ -141,15 +165,14 @@ class Solver:
             if error or labels is None:
                 state.fed = list(job.parts)
                 labels = np.full(sum(p.stamps_ns.size for p in job.parts), UNASSIGNED, np.int64)
-            si, ns, _ = _concat(state.fed)
+            si, ns, vel, ln, _ = _concat(state.fed)
             aligned = np.array(
-                [previous.get(k, UNASSIGNED) for k in zip(si.tolist(), ns.tolist())],
-                dtype=np.int64,
+                [previous.get(k, UNASSIGNED) for k in _keys(si, ns, ln, vel)], dtype=np.int64
             )
             state.ids = stable_ids(aligned, labels)
             state.segments_done = len(job.parts)
         solve_time = time.perf_counter() - t0
-        si, ns, vel = _concat(state.fed)
+        si, ns, vel, lanes, lengths = _concat(state.fed)
         return Result(
             episode_id=job.episode_id,
             method=job.method,
@@ -167,6 +190,8 @@ class Solver:
             error=error,
             started_at=started_at,
             missing=job.missing,
+            lanes=lanes,
+            lengths=lengths,
         )
 
     @staticmethod

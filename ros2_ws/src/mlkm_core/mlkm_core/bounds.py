@@ -21,6 +21,7 @@ REASONS = (
     'negative_velocity',
     'speed_out_of_range',
     'stamp_out_of_range',
+    'length_out_of_range',
 )
 
 
@@ -32,18 +33,30 @@ class Bounds:
     max_speed: float = 150.0  # fastest plausible passage (540 km/h) [m/s]
     min_stamp: float = 0.0  # earliest passage time [s]
     max_stamp: float = 2.0**31 - 1  # latest passage time (int32 seconds of a ROS stamp) [s]
+    min_length: float = 0.1  # shortest plausible measured vehicle length [m]
+    max_length: float = 100.0  # longest plausible one (oversize transports included) [m]
 
     def __post_init__(self) -> None:
-        values = (self.min_speed, self.max_speed, self.min_stamp, self.max_stamp)
+        values = (
+            self.min_speed,
+            self.max_speed,
+            self.min_stamp,
+            self.max_stamp,
+            self.min_length,
+            self.max_length,
+        )
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f'bounds must be finite: {self}')
         if not 0.0 < self.min_speed < self.max_speed:
             raise ValueError(f'need 0 < min_speed < max_speed, got {self}')
         if not self.min_stamp < self.max_stamp:
             raise ValueError(f'need min_stamp < max_stamp, got {self}')
+        if not 0.0 < self.min_length < self.max_length:
+            raise ValueError(f'need 0 < min_length < max_length, got {self}')
 
-    def refuse(self, stamp: float, velocity: float) -> str | None:
-        """The reason one detection (stamp [s], velocity [m/s]) is refused, or None."""
+    def refuse(self, stamp: float, velocity: float, length: float = math.nan) -> str | None:
+        """The reason one detection (stamp [s], velocity [m/s], measured vehicle length [m],
+        NaN or 0 = not measured) is refused, or None."""
         if math.isnan(velocity):
             return 'nan_velocity'
         if math.isinf(velocity):
@@ -56,11 +69,22 @@ class Bounds:
             return 'speed_out_of_range'
         if not (math.isfinite(stamp) and self.min_stamp <= stamp <= self.max_stamp):
             return 'stamp_out_of_range'
+        if not (
+            math.isnan(length) or length == 0.0 or self.min_length <= length <= self.max_length
+        ):
+            return 'length_out_of_range'
         return None
 
-    def refuse_all(self, stamps: np.ndarray, velocities: np.ndarray) -> list[str | None]:
+    def refuse_all(
+        self, stamps: np.ndarray, velocities: np.ndarray, lengths: np.ndarray | None = None
+    ) -> list[str | None]:
         """:meth:`refuse` for every row; the arrays must have the same length."""
-        return [self.refuse(float(t), float(v)) for t, v in zip(stamps, velocities, strict=True)]
+        if lengths is None:
+            lengths = np.full(len(stamps), math.nan)
+        return [
+            self.refuse(float(t), float(v), float(n))
+            for t, v, n in zip(stamps, velocities, lengths, strict=True)
+        ]
 
     def describe(self, reason: str) -> str:
         """A sentence for users: what the accepted range is for ``reason``."""
@@ -68,4 +92,9 @@ class Bounds:
             return f'velocity outside [{self.min_speed:g}, {self.max_speed:g}] m/s'
         if reason == 'stamp_out_of_range':
             return f'stamp outside [{self.min_stamp:g}, {self.max_stamp:g}] s'
+        if reason == 'length_out_of_range':
+            return (
+                f'vehicle length outside [{self.min_length:g}, {self.max_length:g}] m '
+                '(NaN or 0: not measured)'
+            )
         return reason.replace('_', ' ')

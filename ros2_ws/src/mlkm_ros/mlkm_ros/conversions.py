@@ -1,9 +1,11 @@
 """Messages <-> arrays: the one place where ROS messages meet the ROS-free core.
 
 Times travel as ``builtin_interfaces/Time`` and are handled here as integer nanoseconds
-(the join key of detections, tracks and ground truth is (sensor id, stamp in ns)); the core
-gets seconds as float64 via :func:`ns_to_seconds`. Every node, script and test converts
-through these functions, so a detection's stamp means the same everywhere.
+(the join key of detections, tracks and ground truth is (sensor id, lane, stamp in ns), lane
+-1 where unknown); the core gets seconds as float64 via :func:`ns_to_seconds`. A vehicle
+length travels as float64 metres, NaN (or the unset 0) where it was not measured. Every
+node, script and test converts through these functions, so a detection's stamp means the
+same everywhere.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ NS_PER_S = 1_000_000_000
 FRAME_ID = 'road'
 #: GroundTruth.target_id of a false alarm.
 FALSE_ALARM_ID = GroundTruth.FALSE_ALARM
+#: Detection.lane of a sensor that does not report lanes.
+LANE_UNKNOWN = Detection.LANE_UNKNOWN
 
 
 # --- time ---------------------------------------------------------------------------------
@@ -67,18 +71,30 @@ def header(stamp_ns: int) -> Header:
 # --- layout -------------------------------------------------------------------------------
 
 
-def layout_to_msg(layout: Layout, stamp_ns: int) -> SensorLayout:
+def layout_to_msg(
+    layout: Layout,
+    stamp_ns: int,
+    lane_counts: Sequence[int] | np.ndarray | None = None,
+    entry_positions: Sequence[float] | np.ndarray = (),
+    exit_positions: Sequence[float] | np.ndarray = (),
+) -> SensorLayout:
+    """``lane_counts``: lanes watched by each sensor (None: unknown); ``entry_positions`` /
+    ``exit_positions``: on- and off-ramps between the sensors [m]."""
     msg = SensorLayout(header=header(stamp_ns), road_length=float(layout.road_length))
     msg.sensor_ids = [int(s) for s in layout.sensor_ids]
     msg.sensor_names = list(layout.names)
     msg.positions = [float(p) for p in layout.positions]
+    msg.lane_counts = [] if lane_counts is None else [int(n) for n in lane_counts]
+    msg.entry_positions = [float(x) for x in entry_positions]
+    msg.exit_positions = [float(x) for x in exit_positions]
     return msg
 
 
 def layout_from_msg(msg: SensorLayout) -> Layout:
     """Raises ValueError with the reason when the message is not a valid layout: a finite
     positive road length, at least one sensor, finite strictly increasing positions inside
-    (0, road_length), unique ids and unique non-empty names."""
+    (0, road_length), unique ids and unique non-empty names; lane_counts empty or one count
+    >= 1 per sensor; entry and exit positions finite and inside (0, road_length)."""
     n = len(msg.positions)
     if len(msg.sensor_ids) != n or len(msg.sensor_names) != n:
         raise ValueError('sensor_ids, sensor_names and positions differ in length')
@@ -87,6 +103,11 @@ def layout_from_msg(msg: SensorLayout) -> Layout:
         raise ValueError(f'road_length must be finite and > 0, got {road_length!r}')
     if any(not name for name in msg.sensor_names):
         raise ValueError('sensor names must not be empty')
+    lane_counts_from_msg(msg)
+    for field in ('entry_positions', 'exit_positions'):
+        for x in getattr(msg, field):
+            if not (math.isfinite(x) and 0 < x < road_length):
+                raise ValueError(f'{field}: {x!r} m is not inside the road (0, {road_length:g}) m')
     return Layout(
         road_length=road_length,
         positions=np.asarray(msg.positions, dtype=float),
@@ -95,21 +116,62 @@ def layout_from_msg(msg: SensorLayout) -> Layout:
     )
 
 
+def lane_counts_from_msg(msg: SensorLayout) -> tuple[int, ...] | None:
+    """Lanes per sensor, parallel to sensor_ids, or None when the layout does not say;
+    ValueError when the array is neither empty nor one count >= 1 per sensor."""
+    counts = [int(c) for c in msg.lane_counts]
+    if not counts:
+        return None
+    if len(counts) != len(msg.sensor_ids):
+        raise ValueError(
+            f'lane_counts has {len(counts)} entries for {len(msg.sensor_ids)} sensors '
+            '(give none or one per sensor)'
+        )
+    if min(counts) < 1:
+        raise ValueError(f'lane_counts must be >= 1, got {min(counts)}')
+    return tuple(counts)
+
+
 # --- detections, ground truth, episodes ---------------------------------------------------
 
 
-def detection_to_msg(sensor_id: int, stamp_ns: int, position: float, velocity: float) -> Detection:
+def detection_to_msg(
+    sensor_id: int,
+    stamp_ns: int,
+    position: float,
+    velocity: float,
+    lane: int = LANE_UNKNOWN,
+    length: float = math.nan,
+) -> Detection:
+    """``lane``: index from the right, -1 unknown; ``length``: vehicle length [m], NaN
+    unknown."""
     return Detection(
         header=header(stamp_ns),
         sensor_id=int(sensor_id),
         position=float(position),
         velocity=float(velocity),
+        lane=int(lane),
+        length=float(length),
     )
 
 
+def detection_length(msg: Detection) -> float:
+    """The measured vehicle length [m] of a detection; NaN when unknown (NaN or the unset
+    0 in the message)."""
+    return math.nan if msg.length == 0.0 else float(msg.length)
+
+
 def ground_truth_to_msg(
-    episode_id: int, sensor_id: int, stamp_ns: int, target: int, true_velocity: float
+    episode_id: int,
+    sensor_id: int,
+    stamp_ns: int,
+    target: int,
+    true_velocity: float,
+    lane: int = LANE_UNKNOWN,
+    vehicle_id: str = '',
 ) -> GroundTruth:
+    """``target`` < 0 marks a false alarm; ``vehicle_id`` is the source's own name of the
+    target (a SUMO vehicle id), empty when none."""
     false_alarm = target < 0
     return GroundTruth(
         header=header(stamp_ns),
@@ -118,6 +180,8 @@ def ground_truth_to_msg(
         target_id=FALSE_ALARM_ID if false_alarm else int(target),
         false_alarm=bool(false_alarm),
         true_velocity=float(true_velocity),
+        lane=int(lane),
+        vehicle_id=str(vehicle_id),
     )
 
 
@@ -217,21 +281,33 @@ def tracks_to_msg(
     labels: np.ndarray,
     solve_time: float,
     stamp_ns: int,
+    lanes: np.ndarray | None = None,
+    lengths: np.ndarray | None = None,
 ) -> TrackArray:
-    """Group detections by label into Tracks (each ordered by position, then stamp).
+    """Group detections by label into Tracks (each ordered by position, then stamp, then
+    lane) of an episodes-mode TrackArray: every track STATUS_FINAL in a final array,
+    STATUS_CONFIRMED in a partial one.
 
-    ``labels[i]`` is the track id of detection i, or -1 (unassigned).
+    ``labels[i]`` is the track id of detection i, or -1 (unassigned); ``lanes`` (-1 unknown)
+    and ``lengths`` [m] (NaN unknown) default to unknown.
     """
     labels = np.asarray(labels, dtype=np.int64)
     sensor_ids = np.asarray(sensor_ids, dtype=np.int64)
     stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
     velocities = np.asarray(velocities, dtype=float)
     positions = np.asarray(positions, dtype=float)
-    order = np.lexsort((stamps_ns, positions, labels))
+    n = labels.size
+    lanes = np.full(n, LANE_UNKNOWN, np.int64) if lanes is None else np.asarray(lanes, np.int64)
+    lengths = np.full(n, math.nan) if lengths is None else np.asarray(lengths, dtype=float)
+    if lanes.shape != (n,) or lengths.shape != (n,):
+        raise ValueError('lanes and lengths need one entry per detection')
+    status = Track.STATUS_FINAL if final else Track.STATUS_CONFIRMED
+    order = np.lexsort((lanes, stamps_ns, positions, labels))
     sorted_labels = labels[order]
     cuts = np.flatnonzero(np.diff(sorted_labels)) + 1
     msg = TrackArray(
         header=header(stamp_ns),
+        mode=TrackArray.MODE_EPISODES,
         episode_id=int(episode_id),
         method=method,
         final=bool(final),
@@ -250,14 +326,19 @@ def tracks_to_msg(
             msg.unassigned_sensor_ids = ids
             msg.unassigned_stamps = times
             msg.unassigned_velocities = velocities[group].tolist()
+            msg.unassigned_lanes = lanes[group].tolist()
+            msg.unassigned_lengths = lengths[group].tolist()
             continue
         tracks.append(
             Track(
                 track_id=label,
+                status=status,
                 sensor_ids=ids,
                 stamps=times,
                 velocities=velocities[group].tolist(),
                 positions=positions[group].tolist(),
+                lanes=lanes[group].tolist(),
+                lengths=lengths[group].tolist(),
             )
         )
     msg.tracks = tracks
@@ -266,7 +347,8 @@ def tracks_to_msg(
 
 def tracks_from_msg(msg: TrackArray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(sensor_ids, stamps_ns, velocities, labels) of every detection in the message;
-    unassigned detections get label -1."""
+    unassigned detections get label -1. :func:`track_lanes_from_msg` gives their lanes and
+    lengths in the same order."""
     ids: list[int] = []
     stamps: list[int] = []
     vels: list[float] = []
@@ -286,6 +368,27 @@ def tracks_from_msg(msg: TrackArray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         np.asarray(vels, dtype=float),
         np.asarray(labels, dtype=np.int64),
     )
+
+
+def track_lanes_from_msg(msg: TrackArray) -> tuple[np.ndarray, np.ndarray]:
+    """(lanes, lengths) of every detection in the order of :func:`tracks_from_msg`; a
+    message without them (empty arrays) reads as lane -1 and length NaN. ValueError when a
+    non-empty array is not parallel to its sensor ids."""
+    lanes: list[int] = []
+    lengths: list[float] = []
+
+    def add(n: int, ln: Sequence[int], size: Sequence[float], what: str) -> None:
+        if len(ln) not in (0, n) or len(size) not in (0, n):
+            raise ValueError(f'{what}: lanes/lengths differ in length from sensor_ids')
+        lanes.extend(ln if len(ln) else [LANE_UNKNOWN] * n)
+        lengths.extend(size if len(size) else [math.nan] * n)
+
+    for track in msg.tracks:
+        add(len(track.sensor_ids), track.lanes, track.lengths, f'track {track.track_id}')
+    add(len(msg.unassigned_sensor_ids), msg.unassigned_lanes, msg.unassigned_lengths, 'unassigned')
+    lengths_arr = np.asarray(lengths, dtype=float)
+    lengths_arr[lengths_arr == 0.0] = math.nan
+    return np.asarray(lanes, dtype=np.int64), lengths_arr
 
 
 # --- score, diagnostics -------------------------------------------------------------------
