@@ -124,12 +124,17 @@ def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams
 
 
 _FIT_FIELDS = ('sigma', 'length', 'stamp_noise', 'velocity_noise')
+_JUMP_FIELDS = ('jump_rate', 'jump_sigma')
 _FIT_BOUNDS = {
     'sigma': (0.05, 50.0),
     'length': (5.0, 1e5),
     'stamp_noise': (FLOOR_T, 5.0),
     'velocity_noise': (FLOOR_V, 5.0),
+    'jump_rate': (1e-6, 0.05),
+    'jump_sigma': (0.3, 20.0),
 }
+#: candidate speed-jump models (rate [1/m], std [m/s]) tried against the pure OU model
+_JUMP_GRID = tuple((r, s) for r in (1e-4, 3e-4, 1e-3, 3e-3) for s in (1.5, 3.0, 6.0))
 _FIT_FACTORS = (np.array([0.35, 0.6, 1.0, 1.7, 2.9]), np.array([0.8, 0.9, 1.0, 1.1, 1.25]))
 
 
@@ -173,14 +178,59 @@ def fit_motion(
     best = int(np.argmin(nll.reshape(sg.size, n).sum(axis=1)))
     p = replace(p, sigma=float(sg[best]), length=float(ln[best]))
     for factors in _FIT_FACTORS:
-        for name in _FIT_FIELDS:
-            lo, hi = bounds[name]
-            vals = np.clip(getattr(p, name) * factors, lo, hi)
-            rows = {f: np.full(n * vals.size, float(getattr(p, f))) for f in _FIT_FIELDS}
-            rows[name] = np.repeat(vals, n)
-            nll = sequence_nll(layout, d, np.tile(seqs, (vals.size, 1)), p, rows=rows)
-            best = int(np.argmin(nll.reshape(vals.size, n).sum(axis=1)))
-            p = replace(p, **{name: float(vals[best])})
+        p = _coordinate_pass(layout, d, seqs, p, _FIT_FIELDS, factors, bounds)
+    return _fit_jumps(layout, d, seqs, p, bounds)
+
+
+def _score(
+    layout: Layout, d: Detections, seqs: np.ndarray, p: MotionParams, values: dict[str, np.ndarray]
+) -> np.ndarray:
+    """Total NLL of ``seqs`` under each of k parameter sets (``values``: field -> (k,))."""
+    n = seqs.shape[0]
+    k = len(next(iter(values.values())))
+    names = _FIT_FIELDS + _JUMP_FIELDS
+    rows = {f: np.full(n * k, float(getattr(p, f))) for f in names}
+    for f, v in values.items():
+        rows[f] = np.repeat(np.asarray(v, float), n)
+    nll = sequence_nll(layout, d, np.tile(seqs, (k, 1)), p, rows=rows)
+    return nll.reshape(k, n).sum(axis=1)
+
+
+def _coordinate_pass(
+    layout: Layout,
+    d: Detections,
+    seqs: np.ndarray,
+    p: MotionParams,
+    names: tuple[str, ...],
+    factors: np.ndarray,
+    bounds: dict[str, tuple[float, float]],
+) -> MotionParams:
+    for name in names:
+        vals = np.clip(getattr(p, name) * factors, *bounds[name])
+        best = int(np.argmin(_score(layout, d, seqs, p, {name: vals})))
+        p = replace(p, **{name: float(vals[best])})
+    return p
+
+
+def _fit_jumps(
+    layout: Layout,
+    d: Detections,
+    seqs: np.ndarray,
+    p: MotionParams,
+    bounds: dict[str, tuple[float, float]],
+) -> MotionParams:
+    """Turn on the speed-jump component when it explains the tracks better than the pure OU
+    model by more than a BIC penalty (two parameters: log of the number of detections), then
+    refit every parameter with it."""
+    rate = np.array([0.0] + [r for r, _ in _JUMP_GRID])
+    sig = np.array([p.jump_sigma] + [s for _, s in _JUMP_GRID])
+    nll = _score(layout, d, seqs, p, {'jump_rate': rate, 'jump_sigma': sig})
+    best = int(np.argmin(nll))
+    if best == 0 or nll[0] - nll[best] <= math.log(max(int((seqs >= 0).sum()), 2)):
+        return p
+    p = replace(p, jump_rate=float(rate[best]), jump_sigma=float(sig[best]))
+    for factors in _FIT_FACTORS:
+        p = _coordinate_pass(layout, d, seqs, p, _FIT_FIELDS + _JUMP_FIELDS, factors, bounds)
     return p
 
 

@@ -54,6 +54,11 @@ class MotionParams:
     clutter_density: float = 1e-3  # false alarms per sensor per second per (s/m) of slowness
     gate: float = 36.0  # chi-square gate on the normalised innovation (6 sigma)
     max_skip: int = 3  # a track may miss this many consecutive sensors
+    # abrupt speed changes (car following: braking behind a leader, accelerating after
+    # overtaking): with probability 1 - exp(-jump_rate dx) over a distance dx the speed jumps
+    # by N(0, jump_sigma^2) at a uniformly distributed point; 0 = pure OU model
+    jump_rate: float = 0.0  # [1/m]
+    jump_sigma: float = 4.0  # [m/s]
     # lane and length evidence of the detections being associated (None: not used)
     attributes: Attributes | None = field(default=None, compare=False, repr=False)
 
@@ -78,13 +83,27 @@ class Prediction:
     x: float | np.ndarray
     mean: np.ndarray | None = None
     cov: np.ndarray | None = None
+    # (n, 4) probability of a speed jump and the covariance it adds: (p, var tau,
+    # cov tau-u, var u); None without jumps
+    jump: np.ndarray | None = None
 
     def take(self, rows: np.ndarray) -> Prediction:
         """The prediction of the given rows (repeats allowed), in that order."""
         x = self.x if np.isscalar(self.x) else np.asarray(self.x)[rows]
         if self.mean is None:
             return Prediction(self.tracks[rows], x)
-        return Prediction(self.tracks[rows], x, self.mean[rows], self.cov[rows])
+        jump = None if self.jump is None else self.jump[rows]
+        return Prediction(self.tracks[rows], x, self.mean[rows], self.cov[rows], jump)
+
+
+def mix_nll(
+    nll0: np.ndarray, d20: np.ndarray, nll1: np.ndarray, d21: np.ndarray, pj: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """NLL of the two-component mixture (1 - pj) exp(-nll0) + pj exp(-nll1) and the gating
+    distance (the smaller of the two squared Mahalanobis distances)."""
+    with np.errstate(divide='ignore'):
+        lp0, lp1 = np.log1p(-pj), np.log(pj)
+    return -np.logaddexp(lp0 - nll0, lp1 - nll1), np.minimum(d20, d21)
 
 
 class MotionModel(ABC):
@@ -182,6 +201,8 @@ class PairwiseModel(MotionModel):
             + dx * dx * var_du
             + (p.sigma * u * u) ** 2 * dx**3 / (6 * p.length)
         )
+        if p.jump_rate > 0:
+            var_t = var_t + (p.jump_sigma * u * u) ** 2 * dx * dx
         return self.t[tracks] + dx * u, np.sqrt(p.gate * var_t)
 
     def cost(
@@ -201,7 +222,15 @@ class PairwiseModel(MotionModel):
         e_u = u - u1
         var_u = vn1 + vn2 + 2 * su2 * (1 - np.exp(-dx / p.length))
         d2 = e_t * e_t / var_t + e_u * e_u / var_u
-        return 0.5 * (d2 + np.log(var_t * var_u)) + LOG2PI, d2
+        nll = 0.5 * (d2 + np.log(var_t * var_u)) + LOG2PI
+        if p.jump_rate <= 0:
+            return nll, d2
+        # a jump at a uniform point: slowness change vj, trapezoid error vj dx^2 / 12
+        vj = (p.jump_sigma * u1 * u) ** 2
+        vt1, vu1 = var_t + vj * dx * dx / 12, var_u + vj
+        d21 = e_t * e_t / vt1 + e_u * e_u / vu1
+        nll1 = 0.5 * (d21 + np.log(vt1 * vu1)) + LOG2PI
+        return mix_nll(nll, d2, nll1, d21, -np.expm1(-p.jump_rate * dx))
 
     def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
         self.start(pred.tracks, pred.x, t, u)
@@ -292,17 +321,36 @@ class KalmanModel(MotionModel):
         cov[:, 0, 1] += q01
         cov[:, 1, 0] += q01
         cov[:, 1, 1] += su2 * (1 - a * a)
-        return Prediction(tracks, x, mean, cov)
+        rate = self._par('jump_rate', tracks)
+        if np.all(np.asarray(rate) <= 0):
+            return Prediction(tracks, x, mean, cov)
+        # a speed jump at a uniform point of the interval: var vj in slowness, vj d^2 / 3 in
+        # passage time, covariance vj d / 2
+        vj = (self._par('jump_sigma', tracks) * m[:, 2] ** 2) ** 2
+        pj = -np.expm1(-rate * d) + 0 * d
+        jump = np.column_stack([pj, vj * d * d / 3, vj * d / 2, vj])
+        return Prediction(tracks, x, mean, cov, jump)
 
     def gate_window(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
         rt, _ = self.noise(pred.tracks, pred.mean[:, 1])
-        return pred.mean[:, 0], np.sqrt(self.p.gate * (pred.cov[:, 0, 0] + rt))
+        var = pred.cov[:, 0, 0] + rt
+        if pred.jump is not None:
+            var = var + pred.jump[:, 1]
+        return pred.mean[:, 0], np.sqrt(self.p.gate * var)
 
-    def cost(
-        self, pred: Prediction, t: np.ndarray, u: np.ndarray
+    @staticmethod
+    def _with_jump(cov: np.ndarray, jump: np.ndarray) -> np.ndarray:
+        out = cov.copy()
+        out[:, 0, 0] += jump[:, 1]
+        out[:, 0, 1] += jump[:, 2]
+        out[:, 1, 0] += jump[:, 2]
+        out[:, 1, 1] += jump[:, 3]
+        return out
+
+    @staticmethod
+    def _cost(
+        mean: np.ndarray, cov: np.ndarray, rt: np.ndarray, ru: np.ndarray, t: np.ndarray, u
     ) -> tuple[np.ndarray, np.ndarray]:
-        mean, cov = pred.mean, pred.cov
-        rt, ru = self.noise(pred.tracks, u)
         s00 = cov[:, 0, 0] + rt
         s11 = cov[:, 1, 1] + ru
         s01 = cov[:, 0, 1]
@@ -312,9 +360,21 @@ class KalmanModel(MotionModel):
         d2 = (s11 * y0 * y0 - 2 * s01 * y0 * y1 + s00 * y1 * y1) / det
         return 0.5 * (d2 + np.log(det)) + LOG2PI, d2
 
-    def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
-        mean, cov, tracks = pred.mean, pred.cov, pred.tracks
-        rt, ru = self.noise(tracks, u)
+    def cost(
+        self, pred: Prediction, t: np.ndarray, u: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        rt, ru = self.noise(pred.tracks, u)
+        nll, d2 = self._cost(pred.mean, pred.cov, rt, ru, t, u)
+        if pred.jump is None:
+            return nll, d2
+        cov1 = self._with_jump(pred.cov, pred.jump)
+        nll1, d21 = self._cost(pred.mean, cov1, rt, ru, t, u)
+        return mix_nll(nll, d2, nll1, d21, pred.jump[:, 0])
+
+    @staticmethod
+    def _update(
+        mean: np.ndarray, cov: np.ndarray, rt: np.ndarray, ru: np.ndarray, t: np.ndarray, u
+    ) -> tuple[np.ndarray, np.ndarray]:
         s00 = cov[:, 0, 0] + rt
         s11 = cov[:, 1, 1] + ru
         s01 = cov[:, 0, 1]
@@ -325,8 +385,31 @@ class KalmanModel(MotionModel):
         k1 = pc0 * i01[:, None] + pc1 * i11[:, None]
         y0 = t - mean[:, 0]
         y1 = u - mean[:, 1]
-        self.mean[tracks] = mean + k0 * y0[:, None] + k1 * y1[:, None]
-        self.cov[tracks] = (
-            cov - k0[:, :, None] * cov[:, 0, None, :] - (k1[:, :, None] * cov[:, 1, None, :])
-        )
+        new_mean = mean + k0 * y0[:, None] + k1 * y1[:, None]
+        new_cov = cov - k0[:, :, None] * cov[:, 0, None, :] - (k1[:, :, None] * cov[:, 1, None, :])
+        return new_mean, new_cov
+
+    def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
+        mean, cov, tracks = pred.mean, pred.cov, pred.tracks
+        rt, ru = self.noise(tracks, u)
+        m0, c0 = self._update(mean, cov, rt, ru, t, u)
+        if pred.jump is not None:
+            # the mixture posterior collapsed to its first two moments
+            cov1 = self._with_jump(cov, pred.jump)
+            nll0, _ = self._cost(mean, cov, rt, ru, t, u)
+            nll1, _ = self._cost(mean, cov1, rt, ru, t, u)
+            pj = pred.jump[:, 0]
+            with np.errstate(divide='ignore', invalid='ignore'):
+                z = np.log(pj) - nll1 - (np.log1p(-pj) - nll0)
+            w1 = np.where(np.isfinite(z), 1 / (1 + np.exp(-np.clip(z, -50, 50))), 0.0)
+            m1, c1 = self._update(mean, cov1, rt, ru, t, u)
+            w0 = 1 - w1
+            mm = w0[:, None] * m0 + w1[:, None] * m1
+            e0, e1 = m0 - mm, m1 - mm
+            c0 = w0[:, None, None] * (c0 + e0[:, :, None] * e0[:, None, :]) + w1[:, None, None] * (
+                c1 + e1[:, :, None] * e1[:, None, :]
+            )
+            m0 = mm
+        self.mean[tracks] = m0
+        self.cov[tracks] = c0
         self.x[tracks] = pred.x
