@@ -130,8 +130,8 @@ _FIT_BOUNDS = {
     'length': (5.0, 1e5),
     'stamp_noise': (FLOOR_T, 5.0),
     'velocity_noise': (FLOOR_V, 5.0),
-    'jump_rate': (1e-6, 0.05),
-    'jump_sigma': (0.3, 20.0),
+    'jump_rate': (1e-6, 1.5e-3),
+    'jump_sigma': (0.3, 10.0),
 }
 #: candidate speed-jump models (rate [1/m], std [m/s]) tried against the pure OU model
 _JUMP_GRID = tuple((r, s) for r in (1e-4, 3e-4, 1e-3, 3e-3) for s in (1.5, 3.0, 6.0))
@@ -168,6 +168,12 @@ def fit_motion(
     bounds = dict(_FIT_BOUNDS)
     bounds['length'] = (min_length(layout), _FIT_BOUNDS['length'][1])
     p = replace(p, length=float(np.clip(p.length, *bounds['length'])))
+    if p.stamp_noise <= 2 * FLOOR_T:
+        # the moments left nothing for the stamp noise (heavy-tailed travel times inflate the
+        # fluctuation terms): start it from the most likely value of a wide grid instead
+        vals = np.geomspace(FLOOR_T, 1.0, 10)
+        best = int(np.argmin(_score(layout, d, seqs, p, {'stamp_noise': vals})))
+        p = replace(p, stamp_noise=float(vals[best]))
     # joint coarse grid on (sigma, L), which trade off against each other, then coordinates
     fs = np.array([0.5, 0.7, 1.0, 1.4, 2.0])
     sg = np.repeat(np.clip(p.sigma * fs, *bounds['sigma']), fs.size)
