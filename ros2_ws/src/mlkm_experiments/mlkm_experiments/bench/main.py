@@ -1,0 +1,123 @@
+"""``mlkm bench``: argument parsing and the order of the parts."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import sys
+import time
+from pathlib import Path
+
+from mlkm_core.associators import available_methods
+
+from . import cost, grid, peer, soak, sumo
+from .live import run_live
+from .plots import plot_all
+from .report import write_readme
+from .targets import evaluate_targets
+
+#: Parts in the order they run: the ones that fork child processes come before the ones that
+#: start DDS participants in this process (soak).
+PARTS = ('grid', 'peer', 'cost', 'sumo', 'live', 'soak')
+
+
+def _now() -> str:
+    return dt.datetime.now(dt.UTC).strftime('%Y-%m-%d %H:%M UTC')
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    from . import __doc__ as doc
+
+    ap = argparse.ArgumentParser(prog='mlkm bench', description=doc.splitlines()[0])
+    ap.add_argument('--out', default='results/bench', help='output directory (results/bench)')
+    ap.add_argument('--quick', action='store_true', help='small smoke version')
+    ap.add_argument(
+        '--only',
+        choices=PARTS,
+        action='append',
+        help='run only these parts (repeatable); default: all',
+    )
+    ap.add_argument('--methods', help='comma-separated subset of methods (default: all)')
+    ap.add_argument(
+        '--cache-dir',
+        type=Path,
+        help='keep the generated SUMO datasets here (default: a temporary directory per run)',
+    )
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    parts = [p for p in PARTS if p in set(args.only or PARTS)]
+    methods = args.methods.split(',') if args.methods else available_methods()
+    unknown = sorted(set(methods) - set(available_methods()))
+    if unknown:
+        print(f'mlkm bench: unknown method(s) {", ".join(unknown)}', file=sys.stderr)
+        return 2
+    t_start = time.monotonic()
+    logf = open(out_dir / 'bench.log', 'a')
+
+    def log(msg: str) -> None:
+        line = f'[{time.monotonic() - t_start:7.1f} s] {msg}'
+        print(line, flush=True)
+        logf.write(line + '\n')
+        logf.flush()
+
+    def load(name: str) -> dict:
+        f = out_dir / f'{name}.json'
+        return json.loads(f.read_text()) if f.exists() else {}
+
+    def save(name: str, data: dict) -> None:
+        (out_dir / f'{name}.json').write_text(json.dumps(data, indent=1, default=float))
+
+    quick = args.quick
+    seeds = grid.SEEDS_QUICK if quick else grid.SEEDS_FULL
+    runners = {
+        'grid': lambda: grid.run_grid(methods, seeds, log),
+        'peer': lambda: peer.run_peer(
+            {c: 1 if quick else min(n, seeds[c]) for c, n in peer.PEER_SEEDS.items()}, log
+        ),
+        'cost': lambda: cost.run_cost(
+            methods,
+            cost.COST_TARGETS[:3] if quick else cost.COST_TARGETS,
+            20.0 if quick else cost.COST_LIMIT,
+            log,
+        ),
+        'sumo': lambda: sumo.run_sumo(
+            methods, sumo.SEEDS_QUICK if quick else sumo.SEEDS_FULL, log, args.cache_dir
+        ),
+        'live': lambda: run_live(out_dir, log),
+        'soak': lambda: soak.run_soak(
+            log, episodes=soak.QUICK_EPISODES if quick else soak.EPISODES
+        ),
+    }
+    log(f'parts: {", ".join(parts)}; methods: {", ".join(methods)}')
+    for part in parts:
+        t0 = time.monotonic()
+        data = runners[part]()
+        data['wall_s'] = time.monotonic() - t0
+        data['date'] = _now()
+        save(part, data)
+    results = {p: load(p) for p in PARTS}
+    targets = evaluate_targets(results)
+    meta = {
+        'out': args.out,
+        'quick': quick,
+        'only': args.only or [],
+        'seconds': time.monotonic() - t_start,
+        'date': _now(),
+        'parts': parts,
+        'python': sys.version.split()[0],
+    }
+    save('summary', {'meta': meta, 'targets': targets})
+    plot_all(out_dir, results['grid'], results['cost'])
+    soak.plot(out_dir, results['soak'])
+    write_readme(out_dir, results, targets, meta)
+    for t in targets:
+        log(f'target: {t["target"]}: {t["met"]} ({t["value"]})')
+    log(f'done in {meta["seconds"] / 60:.1f} min; wrote {out_dir}')
+    logf.close()
+    return 0

@@ -1,0 +1,79 @@
+"""PNG plots of the accuracy grid and the cost growth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .common import MODES
+from .cost import COST_LIMIT
+
+
+def plot_all(out_dir: Path, grid: dict, cost: dict) -> list[str]:
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    files = []
+    for mode in MODES:
+        cells = [c for c in grid.get('cells', []) if c['mode'] == mode]
+        if not cells:
+            continue
+        methods = list(cells[0]['methods'])
+        fig, ax = plt.subplots(figsize=(11, 4.5))
+        width = 0.8 / max(len(methods), 1)
+        for i, m in enumerate(methods):
+            xs, mean, err_lo, err_hi = [], [], [], []
+            for j, c in enumerate(cells):
+                s = c['methods'][m]['summary']
+                if s['n'] == 0:
+                    continue
+                xs.append(j + (i - len(methods) / 2 + 0.5) * width)
+                mean.append(100 * s['accuracy_mean'])
+                err_lo.append(100 * (s['accuracy_mean'] - s['accuracy_min']))
+                err_hi.append(100 * (s['accuracy_max'] - s['accuracy_mean']))
+            ax.bar(xs, mean, width, yerr=[err_lo, err_hi], capsize=2, label=m)
+        ax.set_xticks(range(len(cells)))
+        ax.set_xticklabels([f'{c["targets"]} targets / {c["sensors"]} sensors' for c in cells])
+        ax.set_ylabel('accuracy [%] (bar: mean, whiskers: min..max)')
+        ax.set_ylim(0, 101)
+        ax.set_title(f'Accuracy grid, {mode} mode (missing bar: stopped at the time limit)')
+        ax.legend(fontsize=7, ncol=5, loc='lower left')
+        fig.tight_layout()
+        name = f'grid_{mode}.png'
+        fig.savefig(out_dir / name, dpi=110)
+        plt.close(fig)
+        files.append(name)
+    if not cost.get('methods'):
+        return files
+    for key, label, fname in (
+        ('seconds', 'runtime [s]', 'cost_runtime.png'),
+        ('peak_bytes', 'peak memory above start [MiB]', 'cost_memory.png'),
+    ):
+        fig, ax = plt.subplots(figsize=(8, 5.5))
+        for m, rec in cost.get('methods', {}).items():
+            pts = rec['points']
+            if not pts:
+                continue
+            x = [p['detections'] for p in pts]
+            y = [p[key] / (2**20 if key == 'peak_bytes' else 1) for p in pts]
+            slope = rec['time_slope' if key == 'seconds' else 'memory_slope']
+            tag = f'{m} (slope {slope:.2f})' if slope is not None else m
+            if rec['stopped']:
+                tag += ' [stopped at limit]'
+            ax.loglog(x, np.maximum(y, 1e-3), 'o-', label=tag)
+        if key == 'seconds':
+            ax.axhline(cost.get('time_limit_s', COST_LIMIT), color='grey', ls=':', lw=1)
+            ax.text(1000, cost.get('time_limit_s', COST_LIMIT) * 1.1, 'time limit', fontsize=8)
+        ax.set_xlabel('detections (20 sensors, more targets)')
+        ax.set_ylabel(label)
+        ax.set_title(f'Cost growth, one core: {label}')
+        ax.grid(True, which='both', alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out_dir / fname, dpi=110)
+        plt.close(fig)
+        files.append(fname)
+    return files

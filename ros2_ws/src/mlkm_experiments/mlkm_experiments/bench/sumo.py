@@ -1,0 +1,232 @@
+"""SUMO traffic: every method and the Stone Soup peer on the SUMO scenarios.
+
+Datasets come from ``mlkm_sumo.api.generate(scenario, n_vehicles, n_stations, seed)`` (seeds
+1, 2, ...), generated once per run into a cache directory and shared by every method. Each
+method sees every dataset twice: with (time, speed) only (``lane`` and ``length`` stripped
+from the detections) and with lane and vehicle length added. Each (method, cell, variant)
+runs in a child process with a time budget, as in the grid. The peer uses (time, speed) only,
+so it runs on the first variant alone.
+"""
+
+from __future__ import annotations
+
+import pickle
+import tempfile
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from mlkm_core.associators import make_associator
+from mlkm_core.types import Dataset, Detections
+
+from .common import PEER, Log, pct, run_budgeted, summarise, timed_row
+
+SCENARIOS = ('single_lane', 'highway', 'congested', 'ramps')
+#: (vehicles, stations) -> datasets per scenario
+SEEDS_FULL = {(50, 20): 3, (200, 50): 2}
+SEEDS_QUICK = {(50, 20): 1}
+#: time budget [s] of one (method, cell, variant): all its datasets
+BUDGET = {(50, 20): 120.0, (200, 50): 150.0}
+#: methods run on the larger cells (every method runs on the others)
+LARGE_METHODS = {(200, 50): ('assignment', 'multiframe', 'mlkm_robust', 'mlkm', PEER)}
+VARIANTS = ('time_speed', 'lane_length')
+VARIANT_LABELS = {'time_speed': 'time, speed', 'lane_length': '+ lane, length'}
+
+
+class DatasetCache:
+    """SUMO datasets generated once per run, pickled under ``root``; SUMO's network files
+    are cached under ``root/networks``."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def path(self, scenario: str, vehicles: int, stations: int, seed: int) -> Path:
+        return self.root / f'{scenario}_{vehicles}x{stations}_seed{seed}.pkl'
+
+    def get(self, scenario: str, vehicles: int, stations: int, seed: int) -> Path:
+        path = self.path(scenario, vehicles, stations, seed)
+        if not path.exists():
+            from mlkm_sumo.api import generate
+
+            ds = generate(scenario, vehicles, stations, seed, cache_dir=self.root / 'networks')
+            plain = Dataset(ds.layout, ds.detections, ds.n_targets)
+            tmp = path.with_suffix('.tmp')
+            tmp.write_bytes(pickle.dumps(plain, protocol=pickle.HIGHEST_PROTOCOL))
+            tmp.replace(path)
+        return path
+
+
+def load(path: Path, variant: str) -> Dataset:
+    """A cached dataset; ``time_speed`` strips lane and length from its detections."""
+    ds: Dataset = pickle.loads(Path(path).read_bytes())
+    if variant == 'time_speed':
+        d = ds.detections
+        ds = Dataset(
+            ds.layout, Detections(d.sensor_index, d.stamp, d.velocity, d.target), ds.n_targets
+        )
+    return ds
+
+
+def sumo_job(method: str, paths: list[Path], variant: str):
+    """Job factory for ``run_budgeted``: load dataset k, associate, score."""
+
+    def make_job():
+        if method == PEER:
+            from mlkm_sumo.measurement import MeasurementConfig
+
+            from .peer import config_for, stonesoup_associate
+
+            m = MeasurementConfig()  # what generate() measures with
+
+            def assoc(d: Dataset):
+                cfg = config_for(d.layout, d.detections)
+                return stonesoup_associate(
+                    d.layout, d.detections, m.stamp_jitter, m.speed_noise, cfg
+                )
+        else:
+            a = make_associator(method)
+
+            def assoc(d: Dataset):
+                return a.associate(d.layout, d.detections, d.n_targets)
+
+        return lambda k: timed_row(load(paths[k], variant), assoc)
+
+    return make_job
+
+
+def run_sumo(methods: list[str], seeds_per_cell: dict, log: Log, cache_dir: Path | None = None):
+    """Every method (and the peer when Stone Soup is installed) on every scenario and cell."""
+    from mlkm_sumo.measurement import MeasurementConfig
+
+    from .peer import PeerConfig, stonesoup_version
+
+    version = stonesoup_version()
+    out: dict = {
+        'scenarios': list(SCENARIOS),
+        'budget_s': {f'{a}x{b}': BUDGET[(a, b)] for a, b in seeds_per_cell},
+        'measurement': asdict(MeasurementConfig()),
+        'peer': {
+            'stonesoup_version': version,
+            'config': asdict(PeerConfig()),
+            'fitted_per_dataset': ['v_nominal', 'delete_after'],
+        },
+        'cells': [],
+    }
+    if version is None:
+        log('sumo: stonesoup is not installed (make setup installs it); peer left out')
+    with tempfile.TemporaryDirectory(prefix='mlkm_bench_sumo_') as tmp:
+        cache = DatasetCache(cache_dir or Path(tmp))
+        for cell, n in seeds_per_cell.items():
+            cell_methods = [m for m in methods if m in LARGE_METHODS.get(cell, methods)]
+            if version is not None and PEER in LARGE_METHODS.get(cell, (PEER,)):
+                cell_methods.append(PEER)
+            for scenario in SCENARIOS:
+                out['cells'].append(_run_cell(scenario, cell, n, cell_methods, cache, log))
+    return out
+
+
+def _run_cell(scenario: str, cell: tuple[int, int], n: int, methods, cache, log: Log) -> dict:
+    vehicles, stations = cell
+    seeds = list(range(1, n + 1))
+    entry: dict = {
+        'scenario': scenario,
+        'vehicles': vehicles,
+        'stations': stations,
+        'seeds': seeds,
+        'variants': {v: {} for v in VARIANTS},
+    }
+    t0 = time.monotonic()
+    try:
+        paths = [cache.get(scenario, vehicles, stations, s) for s in seeds]
+    except Exception as exc:  # SumoError, a failing netconvert: the cell is reported as such
+        entry['error'] = f'{type(exc).__name__}: {exc}'
+        log(f'sumo {scenario} {vehicles}x{stations}: datasets failed: {entry["error"]}')
+        return entry
+    sizes = [len(load(p, 'time_speed').detections) for p in paths]
+    entry['detections_mean'] = sum(sizes) / len(sizes)
+    log(
+        f'sumo {scenario} {vehicles}x{stations}: {n} datasets, '
+        f'{entry["detections_mean"]:.0f} detections each ({time.monotonic() - t0:.1f} s)'
+    )
+    for variant in VARIANTS:
+        for m in methods:
+            if m == PEER and variant != 'time_speed':
+                continue
+            t1 = time.monotonic()
+            rows, status = run_budgeted(sumo_job(m, paths, variant), n, BUDGET[cell])
+            entry['variants'][variant][m] = {
+                'summary': summarise(rows),
+                'status': status,
+                'runs': rows,
+            }
+            s = entry['variants'][variant][m]['summary']
+            log(
+                f'sumo {scenario:11s} {vehicles}x{stations} {variant:11s} {m:12s} '
+                f'{s.get("accuracy_mean", float("nan")) * 100:7.3f}% n={s["n"]} {status} '
+                f'({time.monotonic() - t1:.1f} s)'
+            )
+    return entry
+
+
+def _cell_text(rec: dict | None, n: int) -> str:
+    if rec is None:
+        return '—'
+    s = rec['summary']
+    if s['n'] == 0:
+        return f'stopped: {rec["status"]}'
+    txt = (
+        f'{pct(s["accuracy_mean"])} ({pct(s["accuracy_min"])}..{pct(s["accuracy_max"])}) '
+        f'{s["seconds_mean"]:.2f} s'
+    )
+    if rec['status'] != 'ok':
+        txt += f' [{s["n"]} of {n}: {rec["status"].split(" after")[0]}]'
+    return txt
+
+
+def report_lines(sumo: dict) -> list[str]:
+    """The README section of the SUMO part."""
+    L = ['## SUMO traffic', '']
+    if not sumo.get('cells'):
+        return L + [str(sumo.get('status', 'not run')), '']
+    peer = sumo.get('peer', {})
+    L += [
+        'Datasets from `mlkm_sumo.api.generate(scenario, vehicles, stations, seed)` (seeds '
+        '1, 2, ...; default measurement: no noise, lane-change double reports kept as false '
+        'alarms). Every method sees each dataset with (time, speed) only and again with lane '
+        'and vehicle length added; cells are mean accuracy [%] (min..max) and seconds per '
+        'dataset. Time budget per (method, cell, variant): '
+        + ', '.join(f'{k}: {v:.0f} s' for k, v in sumo.get('budget_s', {}).items())
+        + f'. `{PEER}` is Stone Soup {peer.get("stonesoup_version") or "(not installed)"}, '
+        'set up as in the peer part, with the nominal speed and the deletion time fitted to '
+        'each dataset (`peer.config_for`: median speed; 1.5 x the longest station gap at the '
+        '5th-percentile speed); it uses time and speed only, so it runs once.',
+        '',
+    ]
+    sizes = sorted({(c['vehicles'], c['stations']) for c in sumo['cells']})
+    for vehicles, stations in sizes:
+        cells = [
+            c for c in sumo['cells'] if (c['vehicles'], c['stations']) == (vehicles, stations)
+        ]
+        L += [
+            f'### {vehicles} vehicles, {stations} stations',
+            '',
+            '| scenario | detections | method | '
+            + ' | '.join(VARIANT_LABELS[v] for v in VARIANTS)
+            + ' |',
+            '| --- | --- | --- |' + ' --- |' * len(VARIANTS),
+        ]
+        for c in cells:
+            if 'error' in c:
+                L.append(f'| {c["scenario"]} | — | — |' + f' {c["error"]} |' * len(VARIANTS))
+                continue
+            n = len(c['seeds'])
+            det = f'{c["detections_mean"]:.0f} (n={n})'
+            for m in c['variants']['time_speed']:
+                row = [c['scenario'], det, f'`{m}`']
+                for v in VARIANTS:
+                    rec = c['variants'][v].get(m)
+                    row.append('same (time and speed only)' if rec is None else _cell_text(rec, n))
+                L.append('| ' + ' | '.join(row) + ' |')
+        L.append('')
+    return L

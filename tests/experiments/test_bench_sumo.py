@@ -1,0 +1,95 @@
+"""``mlkm bench --quick --only sumo`` on tiny SUMO datasets, and the budgeted child runner."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from mlkm_core.associators import make_associator
+from mlkm_core.metrics import score
+from mlkm_experiments.bench import common, sumo
+
+
+def test_time_speed_variant_strips_lane_and_length(tmp_path):
+    path = sumo.DatasetCache(tmp_path).get('highway', 5, 3, 1)
+    plain, full = sumo.load(path, 'time_speed'), sumo.load(path, 'lane_length')
+    assert plain.detections.lane is None and plain.detections.length is None
+    assert full.detections.lane is not None and full.detections.length is not None
+    assert np.all(full.detections.length[full.detections.target >= 0] > 0)
+    np.testing.assert_array_equal(plain.detections.stamp, full.detections.stamp)
+    np.testing.assert_array_equal(plain.detections.target, full.detections.target)
+    # the second request is served from the cache, not generated again
+    mtime = path.stat().st_mtime_ns
+    assert sumo.DatasetCache(tmp_path).get('highway', 5, 3, 1) == path
+    assert path.stat().st_mtime_ns == mtime
+
+
+@pytest.mark.slow
+def test_quick_sumo_part_through_the_cli(tmp_path, monkeypatch):
+    from mlkm_assoc import cli
+
+    monkeypatch.setattr(sumo, 'SEEDS_QUICK', {(5, 3): 1})
+    monkeypatch.setitem(sumo.BUDGET, (5, 3), 120.0)
+    monkeypatch.chdir(tmp_path)  # the default --out is results/bench under the cwd
+    argv = ['bench', '--quick', '--only', 'sumo', '--methods', 'assignment']
+    assert cli.main([*argv, '--cache-dir', str(tmp_path / 'cache')]) == 0
+
+    out = tmp_path / 'results' / 'bench'
+    data = json.loads((out / 'sumo.json').read_text())
+    assert [c['scenario'] for c in data['cells']] == list(sumo.SCENARIOS)
+    for c in data['cells']:
+        assert (c['vehicles'], c['stations'], c['seeds']) == (5, 3, [1])
+        plain, full = c['variants']['time_speed'], c['variants']['lane_length']
+        assert set(plain) == {'assignment', common.PEER} and set(full) == {'assignment'}
+        for rec in (plain['assignment'], full['assignment'], plain[common.PEER]):
+            assert rec['status'] == 'ok' and rec['summary']['n'] == 1
+            assert 0.0 <= rec['summary']['accuracy_mean'] <= 1.0
+        # the figures are those of the method on the cached dataset, variant by variant
+        path = sumo.DatasetCache(tmp_path / 'cache').path(c['scenario'], 5, 3, 1)
+        for variant, rec in (('time_speed', plain), ('lane_length', full)):
+            ds = sumo.load(path, variant)
+            labels = make_associator('assignment').associate(
+                ds.layout, ds.detections, ds.n_targets
+            )
+            assert (
+                rec['assignment']['runs'][0]['accuracy'] == score(ds.detections, labels).accuracy
+            )
+            assert rec['assignment']['runs'][0]['detections'] == len(ds.detections) > 0
+    readme = (out / 'README.md').read_text()
+    assert '## SUMO traffic' in readme and '### 5 vehicles, 3 stations' in readme
+    assert '| single_lane |' in readme and '`stonesoup`' in readme
+    assert 'same (time and speed only)' in readme
+    assert not (out / 'grid.json').exists()  # only the part asked for ran
+
+
+def _sleepy_job():
+    def job(k: int) -> dict:
+        time.sleep(0.1 if k == 0 else 30.0)
+        return {'k': k}
+
+    return job
+
+
+def test_budget_stops_a_slow_method_and_says_after_how_many_datasets():
+    t0 = time.monotonic()
+    rows, status = common.run_budgeted(_sleepy_job, 3, budget=2.0)
+    assert rows == [{'k': 0}]
+    assert status == 'stopped at the 2 s time limit after 1 of 3 datasets'
+    assert time.monotonic() - t0 < 25.0  # the child was killed, not waited for
+
+
+def test_budgeted_run_reports_a_crashing_child():
+    def make_job():
+        def job(k: int) -> dict:
+            if k == 1:
+                raise SystemExit(3)
+            return {'k': k}
+
+        return job
+
+    rows, status = common.run_budgeted(make_job, 3, budget=60.0)
+    assert rows == [{'k': 0}]
+    assert status.startswith('crashed after 1 datasets')
