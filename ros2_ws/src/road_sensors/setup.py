@@ -17,11 +17,12 @@ setup(
     zip_safe=True,
     maintainer='mlkm team',
     maintainer_email='dev@example.com',
-    description='Simulated road-side sensors (sensor_sim).',
+    description='Road-side sensor sources: sensor_sim and sumo_sensors (SUMO).',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'sensor_sim = road_sensors.sensor_sim:main',
+            'sumo_sensors = road_sensors.sumo_sensors:main',
         ],
     },
 )

@@ -3,11 +3,11 @@
 Scenarios (``SCENARIOS``) are built from plain-text SUMO sources by netconvert into a cache;
 sensor stations carry one loop detector per lane; a measurement model adds noise, misses and
 false alarms. Entry points: ``generate`` (a batch), ``episodes`` (batches of N vehicles that
-all leave the road), ``PassageStream`` (time-ordered passages for a live source) and
-``mlkm_sumo.cli.main`` (the ``mlkm sumo`` command).
+all leave the road), ``PassageStream`` (time-ordered passages for a live source), ``road``
+(the stations of a seed, without running SUMO) and ``mlkm_sumo.cli.main`` (``mlkm sumo``).
 """
 
-from .api import Passage, PassageStream, SumoDataset, episodes, generate
+from .api import Passage, PassageStream, SumoDataset, episodes, generate, road
 from .measurement import KIND_NAMES, MeasurementConfig
 from .network import SumoError
 from .scenarios import SCENARIOS, Road, make_road
@@ -24,4 +24,5 @@ __all__ = [
     'episodes',
     'generate',
     'make_road',
+    'road',
 ]

@@ -9,6 +9,7 @@ target -1.
 from __future__ import annotations
 
 import heapq
+import math
 import time as _time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -32,17 +33,34 @@ DRAIN_LIMIT = 1800.0
 @dataclass
 class SumoDataset(Dataset):
     """A ``Dataset`` with what SUMO adds: the road (lanes per station, ramps), the SUMO id
-    of every target, the kind of every detection (``measurement.KIND_NAMES``) and counts."""
+    of every target, the kind of every detection (``measurement.KIND_NAMES``) and counts;
+    per detection also the SUMO id of the vehicle behind it ('' for a false alarm; a double
+    report has its vehicle's id but target -1) and its speed before measurement noise."""
 
     road: Road | None = None
     vehicle_ids: tuple[str, ...] = ()
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     stats: dict = field(default_factory=dict)
+    vehicle: np.ndarray = field(default_factory=lambda: np.zeros(0, object))
+    true_speed: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def _rngs(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
     layout_seq, measure_seq = np.random.SeedSequence(seed).spawn(2)
     return np.random.default_rng(layout_seq), np.random.default_rng(measure_seq)
+
+
+def road(
+    scenario_name: str,
+    n_stations: int = 20,
+    seed: int = 1,
+    stations_at: list[float] | np.ndarray | None = None,
+    cache_dir: str | Path | None = None,
+) -> Road:
+    """The road (network and stations) that ``generate``, ``episodes`` and ``PassageStream``
+    use for the same arguments and seed, without running SUMO. Raises SumoError."""
+    scenario(scenario_name)
+    return make_road(scenario_name, n_stations, _rngs(seed)[0], stations_at, cache_dir)
 
 
 def to_dataset(road: Road, measured: Passages, stats: dict) -> SumoDataset:
@@ -56,7 +74,15 @@ def to_dataset(road: Road, measured: Passages, stats: dict) -> SumoDataset:
         measured.station, measured.time, measured.speed, target, measured.lane, measured.length
     )
     return SumoDataset(
-        road.layout, dets, len(ids), road, tuple(ids), measured.kind.copy(), dict(stats)
+        road.layout,
+        dets,
+        len(ids),
+        road,
+        tuple(ids),
+        measured.kind.copy(),
+        dict(stats),
+        measured.vehicle.copy(),
+        measured.true_speed.copy(),
     )
 
 
@@ -192,6 +218,7 @@ class Passage(NamedTuple):
     length: float  # [m]
     vehicle: str  # SUMO id, '' for a false alarm
     kind: int  # measurement.PASSAGE / DOUBLE_REPORT / FALSE_ALARM
+    true_speed: float = math.nan  # before measurement noise [m/s]
 
 
 class PassageStream:
@@ -249,7 +276,7 @@ class PassageStream:
                     p = Passage(
                         float(step.time[k]), st, float(pos[st]), int(step.lane[k]),
                         float(step.speed[k]), float(step.length[k]), str(step.vehicle[k]),
-                        int(step.kind[k]),
+                        int(step.kind[k]), float(step.true_speed[k]),
                     )  # fmt: skip
                     heapq.heappush(heap, p)
                 while heap and heap[0].time <= run.time - hold:

@@ -63,7 +63,8 @@ def _col(dtype) -> np.ndarray:
 
 @dataclass
 class Passages:
-    """Passages as parallel arrays. ``vehicle`` holds SUMO ids ('' for false alarms)."""
+    """Passages as parallel arrays. ``vehicle`` holds SUMO ids ('' for false alarms);
+    ``true_speed`` is the speed before measurement noise (defaults to ``speed``)."""
 
     time: np.ndarray = _col(float)  # [s]
     station: np.ndarray = _col(np.int64)  # index into the road's stations
@@ -72,13 +73,16 @@ class Passages:
     length: np.ndarray = _col(float)  # [m]
     vehicle: np.ndarray = _col(object)
     kind: np.ndarray = _col(np.int64)
+    true_speed: np.ndarray = _col(float)  # [m/s]
 
     def __post_init__(self) -> None:
         for f, dt in zip(
-            fields(self), (float, np.int64, np.int64, float, float, object, np.int64)
+            fields(self), (float, np.int64, np.int64, float, float, object, np.int64, float)
         ):
             setattr(self, f.name, np.asarray(getattr(self, f.name), dtype=dt))
         n = self.time.size
+        if self.true_speed.size == 0 and n:
+            self.true_speed = self.speed.copy()
         if any(getattr(self, f.name).shape != (n,) for f in fields(self)):
             raise ValueError('passage columns must be 1-D of equal length')
 
