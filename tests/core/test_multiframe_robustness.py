@@ -75,9 +75,9 @@ def test_local_search_stops_at_its_budget_on_stop_and_go_traffic():
 
 
 def test_multiframe_with_a_budget_labels_every_detection_and_warns():
-    ds = simulate(STOP_AND_GO, 1)
-    assoc = make_associator('multiframe', AssociatorConfig(search_budget=3_000))
-    with pytest.warns(DegradedResultWarning, match='budget of 3000 candidates'):
+    ds = simulate(SimConfig(n_targets=50, n_sensors=20, **CLUTTER), 1)
+    assoc = make_associator('multiframe', AssociatorConfig(search_budget=30))
+    with pytest.warns(DegradedResultWarning, match='budget of 30 candidates'):
         labels = assoc.associate(ds.layout, ds.detections, ds.n_targets)
     assert labels.shape == (len(ds.detections),)
     assert labels.min() >= -1 and (labels >= 0).any()
@@ -86,6 +86,16 @@ def test_multiframe_with_a_budget_labels_every_detection_and_warns():
         np.testing.assert_array_equal(
             labels, assoc.associate(ds.layout, ds.detections, ds.n_targets)
         )
+
+
+def test_stop_and_go_traffic_gets_the_pairwise_assignment_with_a_warning():
+    # near-zero speeds: the Kalman model (a cruise speed to revert to) predicts the tracks
+    # worse than the pairwise model, whose result multiframe returns instead of searching
+    ds = simulate(STOP_AND_GO, 1)
+    with pytest.warns(DegradedResultWarning, match='worse than the pairwise model'):
+        labels = make_associator('multiframe').associate(ds.layout, ds.detections, 30)
+    want = make_associator('assignment').associate(ds.layout, ds.detections, 30)
+    np.testing.assert_array_equal(labels, want)
 
 
 def test_default_budget_does_not_limit_ordinary_traffic():

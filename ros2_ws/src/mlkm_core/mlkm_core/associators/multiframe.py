@@ -35,9 +35,11 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import replace
 
 import numpy as np
 
+from mlkm_core.associators.attributes import link_pairs
 from mlkm_core.associators.base import (
     Associator,
     DegradedResultWarning,
@@ -45,14 +47,44 @@ from mlkm_core.associators.base import (
     register,
 )
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.likelihood import total_nll
+from mlkm_core.associators.likelihood import sequence_nll, total_nll, track_sequences
 from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.associators.search import refine
 from mlkm_core.types import Detections, Layout
 
 #: above this many detections the search starts from the Kalman pass only (cost; the second
 #: start matters where few detections make the self-calibration noisy)
 DUAL_START_MAX = 5000
+
+
+def kalman_fits(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams) -> bool:
+    """Whether the Kalman model predicts the links of ``labels`` better than the pairwise model.
+
+    Both give the density of a track's next detection (stamp, slowness) given its earlier ones,
+    so their summed log-likelihoods over the same links (capped as in ``sequence_nll``, lane and
+    length left out: they are the same in both) are comparable. The Kalman model conditions on
+    the whole history and must win when its structure (a cruise speed the target reverts to)
+    holds; where it does not (stop-and-go traffic), its likelihood would steer the local search
+    to wrong exchanges.
+    """
+    p = replace(params, attributes=None)
+    a, b = link_pairs(d, labels)
+    if a.size < 10:
+        return True
+    m = PairwiseModel(p)
+    m.grow(a.size)
+    rows = np.arange(a.size)
+    x = layout.positions
+    u = 1.0 / d.velocity
+    m.start(rows, x[d.sensor_index[a]], d.stamp[a], u[a])
+    nll, d2 = m.cost(m.predict(rows, x[d.sensor_index[b]]), d.stamp[b], u[b])
+    pairwise = float(np.sum(nll - 0.5 * np.maximum(d2 - 4 * p.gate, 0.0)))
+    seqs = track_sequences(d, labels, min_len=2)
+    none = np.zeros(seqs.shape[0], bool)
+    kalman = float(sequence_nll(layout, d, seqs, p, none, none).sum())
+    skipped = float((d.sensor_index[b] - d.sensor_index[a] - 1).sum()) * p.miss_cost
+    return bool(kalman - skipped < pairwise)
 
 
 @register
@@ -67,15 +99,25 @@ class MultiFrameAssociator(Associator):
             return out
         params = estimate_params(layout, d)
         budget = self.config.search_budget
+        with np.errstate(all='ignore'):
+            pairwise = link(layout, d, params, 'pairwise')
+            fits = kalman_fits(layout, d, relabel(pairwise), params)
+        if not fits:
+            warnings.warn(
+                'multiframe: the Kalman model predicts the tracks worse than the pairwise model '
+                '(e.g. stop-and-go traffic); returning the pairwise assignment',
+                DegradedResultWarning,
+                stacklevel=2,
+            )
+            out[order] = relabel(pairwise)
+            return out
         # local search from two starting points (the Kalman and the pairwise forward pass);
         # keep the more likely result under the Kalman model
-        best, best_nll, pairwise = None, math.inf, None
+        best, best_nll = None, math.inf
         starts = ('kalman', 'pairwise') if len(d) <= DUAL_START_MAX else ('kalman',)
         with np.errstate(all='ignore'):  # a non-finite score only disqualifies a start
             for model in starts:
-                start = link(layout, d, params, model)
-                if model == 'pairwise':
-                    pairwise = start
+                start = pairwise if model == 'pairwise' else link(layout, d, params, model)
                 result = refine(layout, d, start, params, budget=budget)
                 if result.exhausted:
                     warnings.warn(
@@ -94,6 +136,6 @@ class MultiFrameAssociator(Associator):
                 DegradedResultWarning,
                 stacklevel=2,
             )
-            best = pairwise if pairwise is not None else link(layout, d, params, 'pairwise')
+            best = pairwise
         out[order] = relabel(best)
         return out
