@@ -288,6 +288,8 @@ def test_remaps_are_honoured(rclpy_context, spin_until) -> None:
             '/road/sensor_layout:=/elsewhere/layout',
             '-r',
             f'/road/sensors/{NAMES[0]}/detections:=/elsewhere/a',
+            '-p',
+            'mode:=episodes',  # no episode source here: auto would track the stream
         ],
     )
     test = Node('remap_test', context=rclpy_context)

@@ -26,8 +26,9 @@ from rclpy.parameter import Parameter
 from rclpy.subscription import Subscription
 
 from mlkm_assoc.assembly import REJECT_REASONS, Assembler, AssociationConfig, Job
-from mlkm_assoc.association_params import BOUND_NAMES, NODE_PARAMS, SPECS
+from mlkm_assoc.association_params import BOUND_NAMES, NODE_PARAMS, SPECS, STREAM_PARAMS
 from mlkm_assoc.encoding import Update, encode
+from mlkm_assoc.modes import ModeSwitch
 from mlkm_assoc.solver import SolverProcess
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
@@ -52,6 +53,7 @@ class AssociationNode(Node):
         self._diag_period: float = values.pop('diagnostics_period')
         self._diag_window: float = values.pop('diagnostics_window')
         self._warn_fraction: float = values.pop('warn_rejected_fraction')
+        stream_values = [values.pop(name) for name in STREAM_PARAMS]
         try:
             self._config: AssociationConfig = AssociationConfig(**values)
             self._config.bounds()
@@ -93,6 +95,7 @@ class AssociationNode(Node):
         self._diag_timer = self.create_timer(self._diag_period, self.publish_diagnostics)
         self._worker = threading.Thread(target=self._work, name='publisher', daemon=True)
         self._worker.start()
+        self._modes = ModeSwitch(self, self._tracks_pub, *stream_values)
         self.get_logger().info(
             f'method {self._config.method}, segment_size {self._config.segment_size}; '
             'waiting for the sensor layout'
@@ -147,6 +150,7 @@ class AssociationNode(Node):
         published_ns = conv.time_to_ns(msg.header.stamp)
         if not self._assembler.set_layout(layout, time.monotonic(), published_ns, lane_counts):
             return
+        self._modes.layout(msg, layout, lane_counts)
         if self._assembler.runs != runs:
             self.get_logger().info('a new layout: a new run of the source begins')
         for topic in list(self._det_subs):
@@ -166,6 +170,8 @@ class AssociationNode(Node):
             )
 
     def _on_detection(self, msg: Detection) -> None:
+        if self._modes.take_detection(msg):
+            return
         stamp = msg.header.stamp
         self._assembler.add_detection(
             msg.sensor_id,
@@ -178,6 +184,7 @@ class AssociationNode(Node):
         )
 
     def _on_episode(self, msg: EpisodeInfo) -> None:
+        self._modes.episode_info()
         try:
             info = conv.episode_from_msg(msg)
         except ValueError as exc:
@@ -205,6 +212,7 @@ class AssociationNode(Node):
 
     def _on_tick(self) -> None:
         self._assembler.tick(time.monotonic())
+        self._modes.tick(time.monotonic())
         if self._diagnostics_due:
             self._diagnostics_due = False
             self.publish_diagnostics()
@@ -306,6 +314,7 @@ class AssociationNode(Node):
             values['ingest_rate'] = f'{(a.received - 1) / (a.last_rx - a.first_rx):.1f}'
         else:
             values['ingest_rate'] = ''
+        self._modes.diagnostics(values)
         return values
 
     def diagnostics_level(self, values: dict[str, object], now: float) -> tuple[int, str]:
@@ -351,6 +360,7 @@ class AssociationNode(Node):
         )
 
     def destroy_node(self) -> None:
+        self._modes.close()
         self._solver.close()
         if self._worker.is_alive():
             self._worker.join(timeout=10.0)

@@ -10,8 +10,15 @@ from mlkm_core.associators.base import available_methods
 from mlkm_core.bounds import Bounds
 from mlkm_ros.params import ParamSpec, positive
 
+#: Parameters of stream mode (mlkm_assoc.modes), read once at start-up.
+STREAM_PARAMS = ('mode', 'lag', 'stream_method')
 #: Parameters of the node itself, not of the assembly.
-NODE_PARAMS = ('diagnostics_period', 'diagnostics_window', 'warn_rejected_fraction')
+NODE_PARAMS = (
+    'diagnostics_period',
+    'diagnostics_window',
+    'warn_rejected_fraction',
+    *STREAM_PARAMS,
+)
 _BOUNDS = Bounds()
 BOUND_NAMES = ('min_speed', 'max_speed', 'min_stamp', 'max_stamp', 'min_length', 'max_length')
 
@@ -21,6 +28,12 @@ def _check_method(value: str) -> str | None:
     if value in methods:
         return None
     return f'unknown method {value!r}; choose one of {", ".join(methods)}'
+
+
+def _check_mode(value: str) -> str | None:
+    if value in ('auto', 'episodes', 'stream'):
+        return None
+    return f'unknown mode {value!r}; choose one of auto, episodes, stream'
 
 
 SPECS = [
@@ -119,6 +132,36 @@ SPECS = [
         1e-9,
         1e6,
         check=positive,
+    ),
+    ParamSpec(
+        'mode',
+        'auto',
+        "episodes: the paper's closed world (EpisodeInfo windows and target counts); "
+        'stream: an open road, every detection tracked at once; auto: episodes while '
+        '/road/episode has a publisher, stream otherwise [-]',
+        check=_check_mode,
+        constraints='one of: auto, episodes, stream',
+        read_only=True,
+    ),
+    ParamSpec(
+        'lag',
+        15.0,
+        'stream mode: a link may be revised until the newest stamp is this far past the '
+        "detection's stamp, then it is committed; a road without detections for this long "
+        '(wall time) is flushed [s]',
+        1e-3,
+        1e6,
+        check=positive,
+        read_only=True,
+    ),
+    ParamSpec(
+        'stream_method',
+        'multiframe',
+        "stream mode: associator of the tracker's window solves, any of mlkm_core "
+        'available_methods() [-]',
+        check=_check_method,
+        constraints='one of: ' + ', '.join(available_methods()),
+        read_only=True,
     ),
     ParamSpec(
         'diagnostics_period', 1.0, 'period of /diagnostics [s]', 0.01, 3600.0, read_only=True

@@ -445,3 +445,130 @@ def diagnostics_values(msg: DiagnosticArray, name: str) -> dict[str, str] | None
         if status.name == name:
             return {kv.key: kv.value for kv in status.values}
     return None
+
+
+# --- stream mode (an open road: TrackArray.MODE_STREAM) -------------------------------------
+
+#: One detection of a stream TrackArray: (sensor id, stamp [ns], velocity [m/s], position [m],
+#: lane (-1 unknown), length [m] (NaN unknown)).
+StreamRow = tuple[int, int, float, float, int, float]
+
+
+def stream_tracks_to_msg(
+    *,
+    method: str,
+    tracks: Sequence[tuple[int, int, Sequence[StreamRow]]],
+    unassigned: Sequence[StreamRow],
+    committed_until_ns: int,
+    solve_time: float,
+    stamp_ns: int,
+) -> TrackArray:
+    """A stream-mode TrackArray: ``tracks`` are (track id, status, rows) of the tracks that
+    changed, each with every detection it holds (ordered here by position, then stamp);
+    ``unassigned`` the detections that became unassigned; episode_id 0, final false."""
+    msg = TrackArray(
+        header=header(stamp_ns),
+        mode=TrackArray.MODE_STREAM,
+        episode_id=0,
+        method=method,
+        final=False,
+        solve_time=float(solve_time),
+        committed_until=ns_to_time(max(int(committed_until_ns), 0)),
+    )
+    out = []
+    for track_id, status, rows in tracks:
+        rows = sorted(rows, key=lambda r: (r[3], r[1], r[4]))
+        out.append(
+            Track(
+                track_id=int(track_id),
+                status=int(status),
+                sensor_ids=[int(r[0]) for r in rows],
+                stamps=[ns_to_time(r[1]) for r in rows],
+                velocities=[float(r[2]) for r in rows],
+                positions=[float(r[3]) for r in rows],
+                lanes=[int(r[4]) for r in rows],
+                lengths=[float(r[5]) for r in rows],
+            )
+        )
+    msg.tracks = out
+    msg.unassigned_sensor_ids = [int(r[0]) for r in unassigned]
+    msg.unassigned_stamps = [ns_to_time(r[1]) for r in unassigned]
+    msg.unassigned_velocities = [float(r[2]) for r in unassigned]
+    msg.unassigned_lanes = [int(r[4]) for r in unassigned]
+    msg.unassigned_lengths = [float(r[5]) for r in unassigned]
+    return msg
+
+
+@dataclass(frozen=True)
+class StreamTracks:
+    """The detections of a stream TrackArray as parallel arrays (unassigned ones last)."""
+
+    sensor_ids: np.ndarray  # int64
+    stamps_ns: np.ndarray  # int64
+    lanes: np.ndarray  # int64, -1 unknown
+    labels: np.ndarray  # int64 track id, -1 unassigned
+    status: np.ndarray  # int64 Track.STATUS_* of the detection's track, -1 unassigned
+    committed_until_ns: int
+
+
+def stream_tracks_from_msg(msg: TrackArray) -> StreamTracks:
+    """Decode a stream TrackArray; ValueError when its parallel arrays disagree."""
+    ids: list[int] = []
+    stamps: list[int] = []
+    lanes: list[int] = []
+    labels: list[int] = []
+    status: list[int] = []
+
+    def add(n, sensor_ids, times, lane_values, velocities, label, state, what) -> None:
+        if len(times) != n or len(velocities) != n or len(lane_values) not in (0, n):
+            raise ValueError(f'{what}: parallel arrays differ in length')
+        ids.extend(int(s) for s in sensor_ids)
+        for t in times:
+            if t.sec < 0 or t.nanosec >= NS_PER_S:
+                raise ValueError(f'{what}: invalid time {t.sec} s {t.nanosec} ns')
+            stamps.append(time_to_ns(t))
+        if len(lane_values):
+            lanes.extend(int(v) for v in lane_values)
+        else:
+            lanes.extend([-1] * n)
+        labels.extend([label] * n)
+        status.extend([state] * n)
+
+    for t in msg.tracks:
+        if len(t.positions) != len(t.sensor_ids):
+            raise ValueError(f'track {t.track_id}: parallel arrays differ in length')
+        add(
+            len(t.sensor_ids),
+            t.sensor_ids,
+            t.stamps,
+            t.lanes,
+            t.velocities,
+            int(t.track_id),
+            int(t.status),
+            f'track {t.track_id}',
+        )
+    add(
+        len(msg.unassigned_sensor_ids),
+        msg.unassigned_sensor_ids,
+        msg.unassigned_stamps,
+        msg.unassigned_lanes,
+        msg.unassigned_velocities,
+        -1,
+        -1,
+        'unassigned',
+    )
+    return StreamTracks(
+        np.asarray(ids, np.int64),
+        np.asarray(stamps, np.int64),
+        np.asarray(lanes, np.int64),
+        np.asarray(labels, np.int64),
+        np.asarray(status, np.int64),
+        time_to_ns(msg.committed_until),
+    )
+
+
+def layout_ramps(msg: SensorLayout) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """(entry positions, exit positions) [m] of a layout: its on- and off-ramps."""
+    return tuple(float(x) for x in msg.entry_positions), tuple(
+        float(x) for x in msg.exit_positions
+    )

@@ -1,0 +1,87 @@
+"""Detections from many topics back into stamp order, before they reach the stream tracker.
+
+Each sensor's topic delivers in stamp order, but an executor takes one message per ready
+topic in turn: with a backlog (a source publishing as fast as it can), the i-th message of
+every sensor comes in together, so a downstream sensor's detections arrive up to a travel
+time ahead of the upstream ones. The tracker only tolerates a small reordering, so this
+buffer holds a detection while some sensor is still draining older ones (ROS-free):
+
+* a sensor *blocks* a detection stamped ``t`` when its latest detection is stamped before
+  ``t - margin`` and arrived less than ``wait`` seconds (wall time) ago: its topic is busy
+  and may still hold older detections. A sensor that has been quiet for ``wait`` seconds has
+  nothing older in flight; a sensor that has sent nothing yet counts as heard at the first
+  detection (so the first ones wait ``wait`` for the other topics to start);
+* the oldest held detection is released when no sensor blocks it, or after ``max_hold``
+  seconds whatever happens.
+
+At real time every topic is caught up, no sensor lags by ``margin``, and a detection passes
+at once; reordering smaller than ``margin`` is left to the tracker's own tolerance.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from typing import Any
+
+
+class ReorderBuffer:
+    def __init__(
+        self, n_sensors: int, margin: float = 0.5, wait: float = 0.1, max_hold: float = 1.0
+    ) -> None:
+        self.margin = margin  # [s] stamp time
+        self.wait = wait  # [s] wall time
+        self.max_hold = max_hold  # [s] wall time
+        self._last_stamp = [-math.inf] * n_sensors
+        self._last_rx = [-math.inf] * n_sensors
+        self._heap: list[tuple[float, int, float, Any]] = []
+        self._seq = 0
+        self._started = False
+        self.released_by_timeout = 0
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    def add(self, item: Any, sensor: int, stamp: float, rx: float) -> None:
+        if not self._started:
+            self._started = True
+            self._last_rx = [rx] * len(self._last_rx)
+        if stamp >= self._last_stamp[sensor]:
+            self._last_stamp[sensor] = stamp
+        self._last_rx[sensor] = max(self._last_rx[sensor], rx)
+        heapq.heappush(self._heap, (stamp, self._seq, rx, item))
+        self._seq += 1
+
+    def release(self, now: float) -> list[Any]:
+        """The detections that may go to the tracker now, in stamp order."""
+        heap = self._heap
+        if not heap:
+            return []
+        busy = [st for st, rx in zip(self._last_stamp, self._last_rx) if now - rx < self.wait]
+        floor = (min(busy) if busy else math.inf) + self.margin
+        out = []
+        while heap:
+            stamp, _, rx, item = heap[0]
+            if stamp > floor:
+                if now - rx < self.max_hold:
+                    break
+                self.released_by_timeout += 1
+            heapq.heappop(heap)
+            out.append(item)
+        return out
+
+    def next_check(self, now: float) -> float | None:
+        """Wall time [s] from ``now`` after which ``release`` may free more; None: empty."""
+        if not self._heap:
+            return None
+        soonest = self._heap[0][2] + self.max_hold
+        for rx in self._last_rx:
+            if now - rx < self.wait:
+                soonest = min(soonest, rx + self.wait)
+        return max(soonest - now, 0.0)
+
+    def drain(self) -> list[Any]:
+        """Everything held, in stamp order (the road went quiet, or a new road)."""
+        out = [entry[3] for entry in sorted(self._heap)]
+        self._heap.clear()
+        return out

@@ -1,0 +1,314 @@
+"""The association node's stream mode: an open road without episodes.
+
+Every detection is checked as in episodes mode (the physical bounds, a known sensor at its
+position, a lane the station has, no duplicate; the same rejection reasons in
+/diagnostics), numbered, and queued at once to the tracker process
+(:mod:`mlkm_assoc.stream_worker`), which pushes it into the core's ``StreamTracker`` and
+answers with the tracks it changed. A publisher thread publishes each answer on /mlkm/tracks
+(TrackArray MODE_STREAM) and keeps the statistics, all in ring buffers.
+
+A road that falls quiet (no detection for ``lag`` seconds of wall time) is flushed: every
+link is committed and every track becomes FINAL. A new layout flushes the old road too.
+Detections that arrive before the layout are held (up to ``max_buffered``) and checked once
+it is known.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from mlkm_assoc.stream_worker import Answer, TrackerProcess, TrackerSettings
+from mlkm_core.bounds import REASONS as BOUNDS_REASONS
+from mlkm_core.bounds import Bounds
+from mlkm_core.types import Layout
+
+#: Samples kept for the latency and solve-time statistics (the most recent ones) [-].
+STATS_WINDOW = 10_000
+#: Tolerance between a detection's position and its sensor's layout position [m].
+POSITION_TOLERANCE = 1e-3
+NS_PER_S = 1_000_000_000
+#: Reasons a detection is rejected in stream mode (a subset of episodes mode's).
+REJECT_REASONS = (
+    *BOUNDS_REASONS,
+    'unknown_sensor',
+    'position_mismatch',
+    'lane_out_of_range',
+    'duplicate',
+    'buffer_full',
+)
+
+Raw = tuple[int, int, float, float, int, float, float]  # id, ns, pos, v, lane, length, t_rx
+
+
+@dataclass(frozen=True)
+class StreamSettings:
+    method: str  # associator of the tracker
+    lag: float  # [s] stamp time a link stays revisable; also the quiet time before a flush
+    segment_size: int
+    seed: int
+    max_buffered: int  # detections held before the layout [-]
+
+
+class StreamIngest:
+    """Validation, numbering and duplicate detection (ROS-free, cheap per detection)."""
+
+    def __init__(
+        self,
+        bounds: Bounds,
+        max_buffered: int,
+        send: Callable[[tuple], None],
+        on_reject: Callable[[str, str], None] | None = None,
+    ) -> None:
+        self.bounds = bounds
+        self._max_buffered = max_buffered
+        self._send = send
+        self._on_reject = on_reject
+        self.layout: Layout | None = None
+        self._index: dict[int, int] = {}
+        self._positions: list[float] = []
+        self._lanes: tuple[int, ...] | None = None
+        self._held: list[Raw] = []
+        # duplicate keys of the detections not yet committed, oldest first
+        self._seen: set[tuple] = set()
+        self._seen_order: deque[tuple[int, tuple]] = deque()
+        self.next_key = 0
+        self.received = 0
+        self.accepted = 0
+        self.rejected: Counter[str] = Counter()
+        self.handled: Counter[str] = Counter()
+        self.last_rx: float | None = None
+
+    def set_layout(
+        self,
+        layout: Layout,
+        lane_counts: tuple[int, ...] | None,
+        entries: tuple[float, ...],
+        exits: tuple[float, ...],
+    ) -> None:
+        self.layout = layout
+        self._index = {int(s): i for i, s in enumerate(layout.sensor_ids)}
+        self._positions = [float(p) for p in layout.positions]
+        self._lanes = lane_counts
+        self._seen.clear()
+        self._seen_order.clear()
+        self._send(('layout', layout, entries, exits))
+        held, self._held = self._held, []
+        for raw in held:
+            self._place(*raw)
+
+    def add(
+        self,
+        sensor_id: int,
+        stamp_ns: int,
+        position: float,
+        velocity: float,
+        lane: int,
+        length: float,
+        now: float,
+    ) -> None:
+        self.received += 1
+        self.last_rx = now
+        if self.layout is None:
+            reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity, length)
+            if reason is not None:
+                self._reject(reason, sensor_id, stamp_ns, velocity)
+            elif len(self._held) >= self._max_buffered:
+                self._reject('buffer_full', sensor_id, stamp_ns, velocity)
+            else:
+                self.handled['before_layout'] += 1
+                self._held.append((sensor_id, stamp_ns, position, velocity, lane, length, now))
+            return
+        self._place(sensor_id, stamp_ns, position, velocity, lane, length, now)
+
+    def committed(self, committed_until_ns: int) -> None:
+        """Forget the duplicate keys of detections stamped before ``committed_until_ns``:
+        a repeat of one of them reaches the tracker, which leaves it unassigned (late)."""
+        order, seen = self._seen_order, self._seen
+        while order and order[0][0] < committed_until_ns:
+            seen.discard(order.popleft()[1])
+
+    @property
+    def held(self) -> int:
+        return len(self._held)
+
+    def _place(
+        self,
+        sensor_id: int,
+        stamp_ns: int,
+        position: float,
+        velocity: float,
+        lane: int,
+        length: float,
+        now: float,
+    ) -> None:
+        s = self._index.get(sensor_id)
+        if s is None:
+            self._reject('unknown_sensor', sensor_id, stamp_ns, velocity)
+            return
+        reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity, length)
+        if reason is None and not abs(position - self._positions[s]) <= POSITION_TOLERANCE:
+            reason = 'position_mismatch'
+        if reason is None and (
+            lane < -1 or (lane >= 0 and self._lanes is not None and lane >= self._lanes[s])
+        ):
+            reason = 'lane_out_of_range'
+        if reason is None:
+            dup = (sensor_id, lane, stamp_ns) if lane >= 0 else (sensor_id, stamp_ns, velocity)
+            if dup in self._seen:
+                reason = 'duplicate'
+            else:
+                self._seen.add(dup)
+                self._seen_order.append((stamp_ns, dup))
+        if reason is not None:
+            self._reject(reason, sensor_id, stamp_ns, velocity)
+            return
+        self.accepted += 1
+        key = self.next_key
+        self.next_key += 1
+        length = math.nan if length == 0.0 else length
+        self._send(('det', key, s, sensor_id, stamp_ns, velocity, position, lane, length, now))
+
+    def _reject(self, reason: str, sensor_id: int, stamp_ns: int, velocity: float) -> None:
+        self.rejected[reason] += 1
+        if self._on_reject is not None:
+            detail = self.bounds.describe(reason) if reason in BOUNDS_REASONS else reason
+            self._on_reject(
+                reason,
+                f'sensor {sensor_id}, stamp {stamp_ns} ns, velocity {velocity!r} m/s: {detail}',
+            )
+
+
+class StreamMode:
+    """Stream mode of one node: ingest, the tracker process, the publisher thread.
+
+    ``publish(data)`` publishes a serialized TrackArray; ``log(level, text)`` logs."""
+
+    def __init__(
+        self,
+        settings: StreamSettings,
+        bounds: Bounds,
+        publish: Callable[[bytes], None],
+        log: Callable[[str, str], None],
+        on_reject: Callable[[str, str], None] | None = None,
+    ) -> None:
+        self.settings = settings
+        self._publish = publish
+        self._log = log
+        self._process = TrackerProcess(
+            TrackerSettings(settings.method, settings.lag, settings.segment_size, settings.seed)
+        )
+        self.ingest = StreamIngest(bounds, settings.max_buffered, self._process.put, on_reject)
+        self._lock = threading.Lock()
+        self.latencies: deque[float] = deque(maxlen=STATS_WINDOW)  # arrival -> published [s]
+        self.solve_times: deque[float] = deque(maxlen=STATS_WINDOW)  # tracker per batch [s]
+        self.last: Answer | None = None
+        self.published = 0
+        self.errors = 0
+        self.last_error = ''
+        self._flushed_at: float | None = None  # last_rx at the last flush
+        self._thread = threading.Thread(target=self._work, name='stream_publisher', daemon=True)
+        self._thread.start()
+
+    # --- inputs (executor thread) ---------------------------------------------------------
+    def set_layout(self, layout: Layout, lane_counts, entries, exits) -> None:
+        self.ingest.set_layout(layout, lane_counts, entries, exits)
+        self._log('info', f'stream mode: {layout.n_sensors} sensors, lag {self.settings.lag:g} s')
+
+    def add(self, *args) -> None:
+        self.ingest.add(*args)
+
+    def tick(self, now: float) -> None:
+        """Flush a road that has been quiet for ``lag`` seconds of wall time."""
+        last = self.ingest.last_rx
+        if last is None or last == self._flushed_at or now - last < self.settings.lag:
+            return
+        self.flush(now)
+
+    def flush(self, now: float) -> None:
+        self._flushed_at = self.ingest.last_rx
+        self._process.put(('flush', now))
+
+    # --- answers (publisher thread) -------------------------------------------------------
+    def _work(self) -> None:
+        while True:
+            answer = self._process.get()
+            if answer is None:
+                return
+            try:
+                self._apply(answer)
+            except Exception as exc:  # noqa: BLE001 - shutting down, or a broken context
+                self._log('error', f'publishing stream tracks failed: {exc}')
+
+    def _apply(self, answer: Answer) -> None:
+        if answer.data is not None:
+            self._publish(answer.data)
+            self.published += 1
+        now = time.monotonic()
+        with self._lock:
+            self.latencies.extend(now - t for t in answer.received_at)
+            if answer.received_at:
+                self.solve_times.append(answer.solve_time)
+            self.last = answer
+        if math.isfinite(answer.committed_until):
+            self.ingest.committed(int(answer.committed_until * NS_PER_S))
+        if answer.error:
+            self.errors += 1
+            self.last_error = answer.error
+            self._log('error', answer.error)
+        if answer.flushed:
+            self._log(
+                'info',
+                f'quiet road flushed: {answer.stats.get("tracks_final", 0)} tracks final so far, '
+                f'{answer.working_set} detections in the working set',
+            )
+
+    # --- diagnostics ----------------------------------------------------------------------
+    def diagnostics(self) -> dict[str, object]:
+        """Stream values for /diagnostics (counts of the ingest are merged by the node)."""
+        with self._lock:
+            lat = sorted(self.latencies)
+            solve = list(self.solve_times)
+            last = self.last
+        values: dict[str, object] = {
+            'stream.lag': self.settings.lag,
+            'stream.method': self.settings.method,
+            'stream.held_before_layout': self.ingest.held,
+            'stream.track_updates_published': self.published,
+            'stream.errors': self.errors,
+            'stream.error_last': self.last_error,
+        }
+        if last is not None:
+            values['stream.working_set'] = last.working_set
+            values['stream.detections_held'] = last.held
+            for key in ('tracks_confirmed', 'tracks_final', 'links_revised', 'pushed'):
+                values[f'stream.{key}'] = last.stats.get(key, 0)
+            for key, value in sorted(last.stats.items()):
+                if key.startswith('tracker.'):
+                    values[f'stream.{key}'] = value
+            if math.isfinite(last.committed_until):
+                values['stream.committed_until'] = f'{last.committed_until:.6f}'
+                values['stream.commit_lag'] = f'{last.newest_stamp - last.committed_until:.6f}'
+        values['stream.latency_count'] = len(lat)
+        for q in (0.5, 0.95, 0.99):
+            values[f'stream.latency_p{round(q * 100)}'] = f'{_quantile(lat, q):.6f}' if lat else ''
+        values['stream.latency_max'] = f'{lat[-1]:.6f}' if lat else ''
+        values['stream.solve_time_mean'] = f'{sum(solve) / len(solve):.6f}' if solve else ''
+        values['stream.solve_time_max'] = f'{max(solve):.6f}' if solve else ''
+        return values
+
+    def close(self) -> None:
+        self._process.close()
+        if self._thread.is_alive():
+            self._thread.join(timeout=10.0)
+
+
+def _quantile(ordered: list[float], q: float) -> float:
+    pos = q * (len(ordered) - 1)
+    lo = int(pos)
+    hi = min(lo + 1, len(ordered) - 1)
+    return ordered[lo] + (ordered[hi] - ordered[lo]) * (pos - lo)

@@ -1,0 +1,246 @@
+"""Stream mode of the association node, in process (private rclpy Context, a test publisher).
+
+A hand-made open road: 4 sensors, 3 vehicles passing 50 s apart, no EpisodeInfo at all, so
+the right tracks are certain. Every TrackArray is decoded: stream mode, episode 0, never
+final, stable track ids; once the road falls quiet (``lag`` seconds of wall time) every track
+is FINAL and committed, and the tracks are exactly the vehicles.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from mlkm_assoc.association_node import AssociationNode
+from mlkm_core.types import Layout
+from mlkm_ros import conversions as conv
+from mlkm_ros import qos
+from mlkm_ros.params import ParameterError
+from road_sensor_msgs.msg import (
+    Detection,
+    EpisodeInfo,
+    SensorLayout,
+    Track,
+    TrackArray,
+)
+
+pytestmark = pytest.mark.ros
+
+IDS = [10, 11, 12, 13]
+NAMES = ['s_a', 's_b', 's_c', 's_d']
+POS = [100.0, 200.0, 300.0, 400.0]
+LANES = [2, 2, 2, 2]
+LAYOUT = Layout(500.0, np.array(POS), np.array(IDS), tuple(NAMES))
+#: vehicle -> (entry time [s], speed [m/s], lane, length [m]); 50 s apart: certain answer.
+VEHICLES = {0: (5.0, 40.0, 0, 4.5), 1: (55.0, 25.0, 1, 12.0), 2: (105.0, 50.0, 0, 4.0)}
+
+
+def passages(offset: float = 0.0) -> list[tuple[int, int, float, int, int, float]]:
+    """(sensor index, stamp ns, velocity, vehicle, lane, length) in stamp order."""
+    out = []
+    for vehicle, (t0, v, lane, length) in VEHICLES.items():
+        for s, p in enumerate(POS):
+            out.append((s, conv.seconds_to_ns(offset + t0 + p / v), v, vehicle, lane, length))
+    return sorted(out, key=lambda r: r[1])
+
+
+class Harness:
+    """The node under test plus a test node publishing inputs and collecting outputs."""
+
+    def __init__(self, context, spin_until, **params) -> None:
+        overrides = [Parameter('diagnostics_period', value=0.2)]
+        overrides += [Parameter(k, value=v) for k, v in params.items()]
+        self.node = AssociationNode(context=context, parameter_overrides=overrides)
+        self.test = Node('stream_test', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.test)
+        self.spin_until = spin_until
+        self.layout_pub = self.test.create_publisher(
+            SensorLayout, qos.LAYOUT_TOPIC, qos.LAYOUT_QOS
+        )
+        self.det_pubs = [
+            self.test.create_publisher(Detection, qos.detections_topic(n), qos.DETECTIONS_QOS)
+            for n in NAMES
+        ]
+        self.tracks: list[TrackArray] = []
+        self.diag: dict[str, str] = {}
+        self.test.create_subscription(
+            TrackArray, qos.TRACKS_TOPIC, self.tracks.append, qos.TRACKS_QOS
+        )
+        self.test.create_subscription(
+            DiagnosticArray, qos.DIAGNOSTICS_TOPIC, self._on_diag, qos.DIAGNOSTICS_QOS
+        )
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        values = conv.diagnostics_values(msg, self.node.get_fully_qualified_name())
+        if values is not None:
+            self.diag = values
+
+    def wait(self, predicate, timeout: float = 60.0) -> None:
+        assert self.spin_until(self.executor, predicate, timeout), 'timed out'
+
+    def start(self) -> None:
+        self.layout_pub.publish(
+            conv.layout_to_msg(LAYOUT, conv.seconds_to_ns(1.0), lane_counts=LANES)
+        )
+        self.wait(lambda: self.node.assembler.layout is not None)
+        self.wait(lambda: all(p.get_subscription_count() >= 1 for p in self.det_pubs))
+
+    def detect(self, s, stamp_ns, velocity, lane=-1, length=math.nan, **kw) -> None:
+        self.det_pubs[s].publish(
+            conv.detection_to_msg(
+                kw.get('sensor_id', IDS[s]),
+                stamp_ns,
+                kw.get('position', POS[s]),
+                velocity,
+                lane,
+                length,
+            )
+        )
+
+    def latest(self, mode: int = TrackArray.MODE_STREAM) -> dict[tuple, tuple[int, int]]:
+        """(sensor id, lane, stamp ns) -> (track id or -1, status or -1), the latest state
+        of every detection published in ``mode``."""
+        out = {}
+        for msg in self.tracks:
+            if msg.mode != mode:
+                continue
+            d = conv.stream_tracks_from_msg(msg)
+            for i in range(d.labels.size):
+                key = (int(d.sensor_ids[i]), int(d.lanes[i]), int(d.stamps_ns[i]))
+                out[key] = (int(d.labels[i]), int(d.status[i]))
+        return out
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.test.destroy_node()
+
+
+@pytest.fixture
+def harness(rclpy_context, spin_until):
+    made = []
+
+    def make(**params) -> Harness:
+        h = Harness(rclpy_context, spin_until, **params)
+        made.append(h)
+        return h
+
+    yield make
+    for h in made:
+        h.close()
+
+
+def test_stream_without_episode_info_gets_final_tracks(harness) -> None:
+    h = harness(lag=5.0)  # mode auto, and no /road/episode publisher anywhere
+    h.start()
+    rows = passages()
+    for s, ns, v, _, lane, length in rows:
+        h.detect(s, ns, v, lane, length)
+        if ns == rows[0][1]:  # duplicate (within the lag: recognised)
+            h.detect(s, ns, v, lane, length)
+    bad_ns = conv.seconds_to_ns(30.0)
+    h.detect(0, bad_ns, math.nan)  # nan_velocity
+    h.detect(1, bad_ns, 15.0, sensor_id=99)  # unknown_sensor
+    h.detect(2, bad_ns, 15.0, position=250.0)  # position_mismatch
+    h.detect(3, bad_ns, 15.0, lane=2)  # lane_out_of_range: the station has lanes 0 and 1
+    keys = {(IDS[s], lane, ns): vehicle for s, ns, _, vehicle, lane, _ in rows}
+    # The road falls quiet: after lag seconds of wall time every track is FINAL.
+    last_ns = max(ns for _, ns, *_ in rows)
+    h.wait(
+        lambda: (
+            h.tracks
+            and conv.time_to_ns(h.tracks[-1].committed_until) > last_ns
+            and all(h.latest().get(k, (-1, -1))[1] == Track.STATUS_FINAL for k in keys)
+        )
+    )
+    for msg in h.tracks:
+        assert (msg.mode, msg.episode_id, msg.final) == (TrackArray.MODE_STREAM, 0, False)
+    latest = h.latest()
+    assert set(latest) == set(keys)  # nothing lost, nothing invented
+    track_of = {}
+    for k, vehicle in keys.items():
+        track_of.setdefault(vehicle, set()).add(latest[k][0])
+    assert all(len(t) == 1 for t in track_of.values())  # one track per vehicle
+    assert len({next(iter(t)) for t in track_of.values()}) == 3  # three distinct tracks
+    # The last state of each track: its four detections in road order, with their values.
+    final = {}
+    for msg in h.tracks:
+        for t in msg.tracks:
+            final[t.track_id] = t
+    for vehicle, (_, v, lane, length) in VEHICLES.items():
+        t = final[next(iter(track_of[vehicle]))]
+        assert list(t.sensor_ids) == IDS and list(t.positions) == POS
+        assert list(t.lanes) == [lane] * 4 and list(t.lengths) == [length] * 4
+        assert list(t.velocities) == [v] * 4 and t.status == Track.STATUS_FINAL
+    # committed_until never goes down and, after the flush, covers every detection
+    cu = [conv.time_to_ns(m.committed_until) for m in h.tracks]
+    assert cu == sorted(cu) and cu[-1] > last_ns
+    # final tracks left the working set, and the node forgot their detections
+    h.wait(lambda: h.diag.get('stream.working_set') == '0')
+    assert h.diag['stream.tracks_final'] == '3'
+    d = h.diag
+    assert (d['mode'], d['mode_setting']) == ('stream', 'auto')
+    assert (d['received'], d['accepted'], d['rejected']) == ('17', '12', '5')
+    for reason in (
+        'nan_velocity',
+        'unknown_sensor',
+        'position_mismatch',
+        'lane_out_of_range',
+        'duplicate',
+    ):
+        assert d[f'rejected.{reason}'] == '1', reason
+    assert d['stream.detections_held'] == '0'
+    assert float(d['stream.latency_p95']) >= 0.0 and d['stream.latency_count'] == '12'
+
+
+def test_auto_switches_to_episodes_when_an_episode_publisher_appears(harness) -> None:
+    h = harness(lag=30.0, method='mlkm', segment_size=2, completion_timeout=1.0)
+    h.start()
+    rows = passages()
+    first = [r for r in rows if r[3] == 0]
+    for s, ns, v, _, lane, length in first:
+        h.detect(s, ns, v, lane, length)
+    stream_keys = {(IDS[r[0]], r[4], r[1]) for r in first}
+    h.wait(lambda: set(h.latest()) == stream_keys)
+    assert h.node._modes.mode == 'stream'
+    # A source with episodes appears: the stream is flushed (its track FINAL) and the
+    # node works in episodes mode.
+    episode_pub = h.test.create_publisher(EpisodeInfo, qos.EPISODE_TOPIC, qos.EPISODE_QOS)
+    h.wait(lambda: h.node._modes.mode == 'episodes')
+    h.wait(lambda: {v[1] for v in h.latest().values()} == {Track.STATUS_FINAL})
+    offset = 1000.0
+    ep_rows = passages(offset)
+    start, end = ep_rows[0][1], ep_rows[-1][1] + conv.seconds_to_ns(20.0)
+    episode_pub.publish(conv.episode_started_msg(0, 3, start, end, conv.seconds_to_ns(2.0)))
+    h.wait(lambda: h.node.assembler.knows_episode(0))
+    for s, ns, v, _, lane, length in ep_rows:
+        h.detect(s, ns, v, lane, length)
+    counts = {i: 3 for i in IDS}
+    episode_pub.publish(conv.episode_ended_msg(0, 3, start, end, conv.seconds_to_ns(3.0), counts))
+    h.wait(lambda: any(m.final for m in h.tracks))
+    final = next(m for m in h.tracks if m.final)
+    assert final.mode == TrackArray.MODE_EPISODES and final.episode_id == 0
+    ids, stamps, _, labels = conv.tracks_from_msg(final)
+    label = dict(zip(zip(ids.tolist(), stamps.tolist()), labels.tolist()))
+    truth = {(IDS[s], ns): vehicle for s, ns, _, vehicle, _, _ in ep_rows}
+    assert set(label) == set(truth)
+    groups = {}
+    for k, vehicle in truth.items():
+        groups.setdefault(vehicle, set()).add(label[k])
+    assert all(len(g) == 1 for g in groups.values()) and len(set(label.values())) == 3
+    h.wait(lambda: h.diag.get('mode') == 'episodes')
+    assert h.diag['mode_switches'] == '1'
+
+
+@pytest.mark.parametrize('name,value', [('mode', 'sometimes'), ('stream_method', 'nope')])
+def test_refused_stream_parameters(rclpy_context, name, value) -> None:
+    with pytest.raises(ParameterError, match=name):
+        AssociationNode(context=rclpy_context, parameter_overrides=[Parameter(name, value=value)])
