@@ -101,6 +101,7 @@ def test_param_file_matches_declared_defaults() -> None:
         ('stations_at:=50,1000', 'station at 50 m is outside the usable road [100, 4900] m'),
         ('mode:=batch', "unknown value 'batch'; choose one of episodes, continuous"),
         ('cache_dir:=/dev/null/x', 'cannot create the network cache /dev/null/x'),
+        ('stations_at:=500;1200', 'stations_at must list positions in metres separated by'),
     ],
 )
 def test_bad_setting_exits_2_with_one_clear_message(ros_process, param, words) -> None:
