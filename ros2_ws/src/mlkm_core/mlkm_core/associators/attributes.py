@@ -169,7 +169,8 @@ class TrackAttributes:
         ok = (la >= 0) & (lb >= 0)
         if ok.any():
             sb = a.sensor[det[ok]]
-            stay = np.exp(a.log_stay[sb] - a.log_stay[s.sensor[tracks[ok]]])
+            # either direction along the road (mlkm_robust also matches backwards)
+            stay = np.exp(-np.abs(a.log_stay[sb] - a.log_stay[s.sensor[tracks[ok]]]))
             lane_a = la[ok]
             inside = lane_a < a.pop_lane.shape[1]
             pop_a = np.where(

@@ -48,8 +48,13 @@ def _pair_weights(
     t2: np.ndarray,
     u2: np.ndarray,
     skipped: np.ndarray | None = None,
+    det1: np.ndarray | None = None,
+    det2: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dense gated weights between n1 'ends' and n2 detections at position x2 (or x2 < x1)."""
+    """Dense gated weights between n1 'ends' and n2 detections at position x2 (or x2 < x1).
+
+    ``det1``, ``det2``: the detections' indices in the data ``p.attributes`` was built on, to add
+    the lane and length terms (``attributes``) when they are known."""
     n1, n2 = t1.size, t2.size
     r = np.repeat(np.arange(n1), n2)
     c = np.tile(np.arange(n2), n1)
@@ -62,6 +67,12 @@ def _pair_weights(
         m.start(np.arange(n1), -x1, -t1, u1)
         nll, d2 = m.cost(m.predict(r, -x2), -t2[c], u2[c])
     extra = 0.0 if skipped is None else skipped[r] * p.miss_cost
+    att = p.attributes
+    if att is not None and att.active and det1 is not None and det2 is not None:
+        tr = att.tracker(accumulate=False)
+        tr.grow(n1)
+        tr.start(np.arange(n1), det1)
+        extra = extra + tr.cost(r, det2[c])
     w = nll + extra - p.miss_cost - p.new_cost
     return r, c, np.where(d2 <= p.gate, w, 0.0)
 
@@ -95,8 +106,11 @@ def correct_by_assignment(
     labels: np.ndarray,
     flagged: frozenset[int],
     p: MotionParams,
+    glob: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Layer 2 correction of the flagged sensors, one-to-one with dummies (module doc)."""
+    """Layer 2 correction of the flagged sensors, one-to-one with dummies (module doc).
+
+    ``glob`` maps the indices of ``d`` to those of the data ``p.attributes`` was built on."""
     labels = labels.copy()
     if not flagged or labels.size == 0:
         return labels
@@ -139,6 +153,8 @@ def correct_by_assignment(
                 d.stamp[mj],
                 u[mj],
                 skipped,
+                None if glob is None else glob[ends],
+                None if glob is None else glob[mj],
             )
             mr_i, mc_i = match_sparse(r, c, w, ends.size, mj.size)
         else:
@@ -164,15 +180,21 @@ class RobustMLKM(Associator):
     name = 'mlkm_robust'
 
     def solve_segment(
-        self, layout: Layout, d: Detections, n_targets: int, p: MotionParams
+        self,
+        layout: Layout,
+        d: Detections,
+        n_targets: int,
+        p: MotionParams,
+        glob: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Layers 1 and 2 on one segment (``d`` in canonical order): local cluster labels."""
+        """Layers 1 and 2 on one segment (``d`` in canonical order): local cluster labels;
+        ``glob`` maps ``d``'s indices to those ``p.attributes`` was built on."""
         labels, _ = kmeans_labels(
             np.column_stack([d.velocity, d.stamp]), n_targets, 'k-means++', self.config.seed
         )
         errors = detect_errors(d.sensor_index, d.stamp, labels)
         flagged = errors.flagged | implausible_links(layout.positions, d, labels, p)
-        labels = correct_by_assignment(layout.positions, d, labels, flagged, p)
+        labels = correct_by_assignment(layout.positions, d, labels, flagged, p, glob)
         return np.unique(labels, return_inverse=True)[1].reshape(-1)
 
     def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
@@ -192,7 +214,7 @@ class RobustMLKM(Associator):
             idx = np.flatnonzero(np.isin(d.sensor_index, seg))
             if idx.size == 0:
                 continue
-            local = self.solve_segment(layout, d.subset(idx), n_targets, p)
+            local = self.solve_segment(layout, d.subset(idx), n_targets, p, idx)
             n_c = int(local.max()) + 1
             # first and last detection of each cluster (canonical order is by sensor, stamp)
             first = np.full(n_c, -1, dtype=np.int64)
@@ -222,6 +244,8 @@ class RobustMLKM(Associator):
                         d.stamp[first[cl]],
                         u[first[cl]],
                         skipped,
+                        a_d,
+                        first[cl],
                     )
                     taken = np.array([ids[x] for x in range(n_c) if ids[x] >= 0])
                     if taken.size:
