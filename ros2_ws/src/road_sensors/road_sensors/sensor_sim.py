@@ -13,6 +13,13 @@ subscriber slows the node down instead of breaking it.
 Stamps are the core's passage times moved by a whole number of seconds
 (``mlkm_core.simulator.stream_origin``) so that the stream starts at t >= 0 (ROS times cannot
 be negative); relative times, hence every association result, are the core's.
+
+``mode:=continuous``: an open road instead of episodes. Vehicles of the same model enter for
+ever (``mlkm_core.simulator.simulate_stream``: the paper's U(t_min, t_max) spacing, or a
+Poisson stream at ``arrival_rate``), stamps start at 0 and never go down, no EpisodeInfo is
+published (there is no /road/episode publisher at all, so an association node in mode auto
+tracks the stream), ground truth carries episode 0. ``duration`` [s] of stamp time ends it
+(0 = for ever, until Ctrl-C).
 """
 
 from __future__ import annotations
@@ -20,7 +27,6 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -31,155 +37,24 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
 
-from mlkm_core.simulator import SimConfig, simulate_episodes, stream_origin, time_window
+from mlkm_core.simulator import (
+    StreamDetection,
+    simulate_episodes,
+    simulate_stream,
+    stream_layout,
+    stream_origin,
+    time_window,
+)
 from mlkm_core.types import Dataset
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
-from mlkm_ros.params import ParameterError, ParamSpec, declare_parameters, non_negative
+from mlkm_ros.params import ParameterError, declare_parameters
 from mlkm_ros.publishing import PublishTimeout, ReliablePublisher, total_stats, wait_all_acked
 from road_sensor_msgs.msg import Detection, EpisodeInfo, GroundTruth, SensorLayout
+from road_sensors.sim_params import _NODE_SPECS, SensorSimConfig, _sim_specs
 
-#: Descriptions (with units) and inclusive ranges of the simulator's settings.
-_SIM_DOCS: dict[str, tuple[str, float | None, float | None]] = {
-    'road_length': ('road length D [m]', 1e-3, 1e9),
-    'n_sensors': ('number of sensors N_S [-]', 1, 100000),
-    'n_targets': ('number of targets N_A per episode [-]', 1, 10000000),
-    'velocity_mean': ('mean cruise speed mu [m/s]', 1e-6, 1e6),
-    'velocity_std': ('std of the cruise speed sigma [m/s]', 0.0, 1e6),
-    'start_increment_min': ('t_min of the start-time increment U(t_min, t_max) [s]', -1e6, 1e6),
-    'start_increment_max': ('t_max of the start-time increment U(t_min, t_max) [s]', -1e6, 1e6),
-    'velocity_variation': (
-        'stationary std of the speed fluctuation along the road [m/s]',
-        0.0,
-        1e6,
-    ),
-    'variation_length': ('correlation length of the speed fluctuation [m]', 1e-6, 1e9),
-    'variation_step': ('grid step of the speed profile [m]', 1e-6, 1e9),
-    'min_speed': ('speeds are clipped at this floor [m/s]', 1e-9, 1e6),
-    'miss_probability': ('probability that a passage is not reported [-], in [0, 1)', 0.0, 1.0),
-    'false_alarm_rate': ('expected false alarms per sensor per target [-]', 0.0, 1e6),
-    'false_alarms_per_sensor': ('expected false alarms per sensor per episode [-]', 0.0, 1e9),
-    'stamp_noise': ('std of the Gaussian stamp noise [s]', 0.0, 1e6),
-    'velocity_noise': ('std of the Gaussian speed noise [m/s]', 0.0, 1e6),
-}
-
-
-def _sim_specs() -> list[ParamSpec]:
-    """One read-only parameter per SimConfig field (all of them, whatever the core adds)."""
-    specs = []
-    defaults = SimConfig()
-    for f in fields(SimConfig):
-        value = getattr(defaults, f.name)
-        if isinstance(value, int) and not isinstance(value, bool):
-            value = int(value)
-        elif isinstance(value, float):
-            value = float(value)
-        doc, low, high = _SIM_DOCS.get(f.name, (f'simulator setting {f.name}', None, None))
-        specs.append(ParamSpec(f.name, value, doc, low, high, read_only=True))
-    return specs
-
-
-_NODE_SPECS = [
-    ParamSpec(
-        'seed', 0, 'seed of the layout and of every episode [-]', 0, 2**31 - 1, read_only=True
-    ),
-    ParamSpec('episodes', 3, 'number of episodes to publish [-]', 1, 1000000, read_only=True),
-    ParamSpec(
-        'real_time_factor',
-        0.0,
-        'pacing: passage seconds per wall second; 1.0 = real time, 0 = as fast as '
-        'delivery allows (nothing is lost either way) [-]',
-        0.0,
-        1e6,
-        check=non_negative,
-    ),
-    ParamSpec(
-        'episode_gap',
-        10.0,
-        'passage-time gap between the last detection of one episode and the first of the next [s]',
-        0.0,
-        1e9,
-        read_only=True,
-    ),
-    ParamSpec('publish_clock', False, 'publish /clock with the passage time [-]', read_only=True),
-    ParamSpec(
-        'wait_for_subscribers',
-        1,
-        'before the first episode, wait until every detection topic has at least this '
-        'many subscribers (association node, recorder, ...) [-]',
-        0,
-        1000,
-        read_only=True,
-    ),
-    ParamSpec(
-        'wait_for_truth_subscribers',
-        0,
-        'before the first episode, wait until /road/ground_truth has at least this many '
-        'subscribers (scorer, recorder, ...) [-]',
-        0,
-        1000,
-        read_only=True,
-    ),
-    ParamSpec(
-        'wait_timeout',
-        60.0,
-        'give up waiting for subscribers after this long and fail; 0 = wait forever [s]',
-        0.0,
-        1e9,
-        read_only=True,
-    ),
-    ParamSpec(
-        'start_delay',
-        0.0,
-        'extra pause after the subscribers matched, before the first episode [s]',
-        0.0,
-        1e6,
-        read_only=True,
-    ),
-    ParamSpec(
-        'ack_timeout',
-        60.0,
-        'at each episode end, wait at most this long for every subscriber to '
-        'acknowledge every message [s]',
-        0.0,
-        1e9,
-        read_only=True,
-    ),
-    ParamSpec(
-        'keep_running',
-        False,
-        'stay up after the last episode (the latched layout stays available) [-]',
-        read_only=True,
-    ),
-]
-
-
-@dataclass(frozen=True)
-class SensorSimConfig:
-    """Everything the node needs, from its parameters (read once at startup)."""
-
-    sim: SimConfig
-    seed: int
-    episodes: int
-    real_time_factor: float
-    episode_gap: float
-    publish_clock: bool
-    wait_for_subscribers: int
-    wait_for_truth_subscribers: int
-    wait_timeout: float
-    start_delay: float
-    ack_timeout: float
-    keep_running: bool
-
-    @staticmethod
-    def from_values(values: dict[str, Any]) -> SensorSimConfig:
-        sim_names = {f.name for f in fields(SimConfig)}
-        try:
-            sim = SimConfig(**{k: v for k, v in values.items() if k in sim_names})
-        except (ValueError, TypeError) as exc:
-            raise ParameterError(f'invalid simulator settings: {exc}') from None
-        rest = {k: v for k, v in values.items() if k not in sim_names}
-        return SensorSimConfig(sim=sim, **rest)
+#: The parameter tables live in road_sensors.sim_params (re-exported for the param-file test).
+__all__ = ['SensorSimConfig', 'SensorSimNode', '_NODE_SPECS', '_sim_specs', 'main']
 
 
 class SensorSimNode(Node):
@@ -192,19 +67,30 @@ class SensorSimNode(Node):
         self._config: SensorSimConfig = SensorSimConfig.from_values(values)
         self._rtf: float = self._config.real_time_factor
         cfg = self._config
-        self._datasets: list[Dataset] = simulate_episodes(
-            cfg.sim, cfg.seed, cfg.episodes, cfg.episode_gap
-        )
-        #: [ns] added to every passage time, so that the stream starts at t >= 0.
-        self._origin_ns: int = conv.seconds_to_ns(stream_origin(self._datasets))
-        layout = self._datasets[0].layout
+        self._continuous = cfg.mode == 'continuous'
+        self._datasets: list[Dataset] = []
+        self._stream_stats: dict[str, int] = {}
+        if self._continuous:
+            layout = stream_layout(cfg.sim, cfg.seed)
+            self._origin_ns = 0  # simulate_stream starts at 0
+        else:
+            self._datasets = simulate_episodes(cfg.sim, cfg.seed, cfg.episodes, cfg.episode_gap)
+            #: [ns] added to every passage time, so that the stream starts at t >= 0.
+            self._origin_ns: int = conv.seconds_to_ns(stream_origin(self._datasets))
+            layout = self._datasets[0].layout
         self._layout = layout
         self._stop = threading.Event()
         self._layout_pub: Publisher = self.create_publisher(
             SensorLayout, qos.LAYOUT_TOPIC, qos.LAYOUT_QOS
         )
-        self._episode_pub = self._reliable(
-            self.create_publisher(EpisodeInfo, qos.EPISODE_TOPIC, qos.EPISODE_QOS)
+        # A continuous source has no /road/episode publisher at all (receivers in mode auto
+        # tell the two kinds of source apart by it).
+        self._episode_pub: ReliablePublisher | None = (
+            None
+            if self._continuous
+            else self._reliable(
+                self.create_publisher(EpisodeInfo, qos.EPISODE_TOPIC, qos.EPISODE_QOS)
+            )
         )
         self._truth_pub = self._reliable(
             self.create_publisher(GroundTruth, qos.GROUND_TRUTH_TOPIC, qos.GROUND_TRUTH_QOS)
@@ -225,9 +111,20 @@ class SensorSimNode(Node):
         self._error: str | None = None
         self._published = 0
         self._layout_pub.publish(conv.layout_to_msg(layout, self._now_ns()))
+        if self._continuous:
+            length = f'{cfg.duration:g} s' if cfg.duration > 0 else 'for ever'
+            spacing = (
+                f'Poisson arrivals at {cfg.arrival_rate:g}/s'
+                if cfg.arrival_rate > 0
+                else f'spacing U({cfg.sim.start_increment_min:g}, '
+                f'{cfg.sim.start_increment_max:g}) s'
+            )
+            what = f'continuous traffic ({spacing}) {length}'
+        else:
+            what = f'{cfg.episodes} episodes of {cfg.sim.n_targets} targets'
         self.get_logger().info(
-            f'{layout.n_sensors} sensors on {layout.road_length:g} m, {cfg.episodes} episodes '
-            f'of {cfg.sim.n_targets} targets, seed {cfg.seed}, real_time_factor {self._rtf:g}'
+            f'{layout.n_sensors} sensors on {layout.road_length:g} m, {what}, seed {cfg.seed}, '
+            f'real_time_factor {self._rtf:g}'
             + (f', stamps start at +{self._origin_ns / 1e9:g} s' if self._origin_ns else '')
         )
         self._thread = threading.Thread(target=self._run, name='sensor_sim', daemon=True)
@@ -302,7 +199,8 @@ class SensorSimNode(Node):
             self._stop.wait(delay)
 
     def _reliable_publishers(self) -> list[ReliablePublisher]:
-        return [*self._det_pubs, self._truth_pub, self._episode_pub]
+        extra = [] if self._episode_pub is None else [self._episode_pub]
+        return [*self._det_pubs, self._truth_pub, *extra]
 
     def _wait_acked(self) -> bool:
         return wait_all_acked(self._reliable_publishers(), self._config.ack_timeout)
@@ -314,6 +212,9 @@ class SensorSimNode(Node):
             if self._config.start_delay > 0:
                 self._stop.wait(self._config.start_delay)
             self._anchor = None
+            if self._continuous:
+                if not self._publish_stream():
+                    return
             for k, dataset in enumerate(self._datasets):
                 if self._interrupted() or not self._publish_episode(k, dataset):
                     return
@@ -322,8 +223,13 @@ class SensorSimNode(Node):
             if self._interrupted():
                 return
             flow = total_stats(self._reliable_publishers())
+            where = (
+                f'of {self._stream_stats.get("vehicles", 0)} vehicles generated, continuous'
+                if self._continuous
+                else f'in {len(self._datasets)} episodes'
+            )
             self.get_logger().info(
-                f'published {self._published} detections in {len(self._datasets)} episodes '
+                f'published {self._published} detections {where} '
                 f'(waited {flow["waited"]:g} s for subscribers: {flow["window_waits"]} '
                 f'flow-control waits, {flow["retries"]} refused publishes retried)'
             )
@@ -336,6 +242,42 @@ class SensorSimNode(Node):
             self._done.set()
             if not self._config.keep_running or self._error:
                 rclpy.try_shutdown(context=self.context)
+
+    def _publish_stream(self) -> bool:
+        """Continuous mode: detections of the endless road until ``duration``; False when
+        interrupted."""
+        cfg = self._config
+        ids = [int(s) for s in self._layout.sensor_ids]
+        positions = [float(p) for p in self._layout.positions]
+        det_pubs, truth_pub, clock_pub = self._det_pubs, self._truth_pub, self._clock_pub
+        stream = simulate_stream(
+            cfg.sim, cfg.seed, cfg.arrival_rate, cfg.duration, self._stream_stats
+        )
+        last_clock = None
+        next_report = 60.0
+        det: StreamDetection
+        for det in stream:
+            if self._stop.is_set():
+                return False
+            self._pace(det.stamp)
+            s, t_ns = det.sensor_index, conv.seconds_to_ns(det.stamp)
+            if clock_pub is not None and (last_clock is None or t_ns - last_clock >= 10**7):
+                clock_pub.publish(Clock(clock=conv.ns_to_time(t_ns)))
+                last_clock = t_ns
+            if not det_pubs[s].publish(
+                conv.detection_to_msg(ids[s], t_ns, positions[s], det.velocity)
+            ) or not truth_pub.publish(
+                conv.ground_truth_to_msg(0, ids[s], t_ns, det.target, det.true_velocity)
+            ):
+                return False
+            self._published += 1
+            if det.stamp >= next_report:
+                next_report += 60.0
+                self.get_logger().info(
+                    f'continuous: {self._published} detections published up to '
+                    f't = {det.stamp:.0f} s'
+                )
+        return True
 
     def _publish_episode(self, k: int, dataset: Dataset) -> bool:
         """Publish one episode; False when interrupted."""
