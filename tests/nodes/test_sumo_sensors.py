@@ -234,3 +234,42 @@ def test_continuous_mode_streams_without_episodes(ros_process, listener, spin_un
     assert det_keys == truth_keys and len(det_keys) == n
     assert all(d.header.stamp.sec >= 0 and 3.0 < d.length < 20.0 for d in listener.detections)
     assert listener.clock and all(c.clock.sec >= 0 for c in listener.clock)
+
+
+def test_continuous_forever_stops_cleanly_on_ctrl_c(ros_process, listener, spin_until) -> None:
+    sumo = ros_process(
+        'road_sensors',
+        'sumo_sensors',
+        '--ros-args',
+        *('-p', 'scenario:=single_lane', '-p', 'mode:=continuous', '-p', 'duration:=0.0'),
+        *('-p', 'stations:=3', '-p', 'real_time_factor:=20.0'),
+        *('-p', 'wait_for_subscribers:=0', '-p', 'wait_for_truth_subscribers:=1'),
+    )
+    assert spin_until(listener.executor, lambda: len(listener.truth) >= 3, 60.0), sumo.output()
+    assert sumo.proc.poll() is None  # runs on: no duration
+    assert sumo.stop() == 0
+    assert 'Traceback' not in sumo.output() and 'error' not in sumo.output()
+
+
+def test_sumo_failure_while_running_is_exit_2_with_its_message(rclpy_context, monkeypatch) -> None:
+    """In process: SUMO failing in the middle of a run (here: the episode source raises
+    SumoError after the layout went out) ends the run with exit code 2 and SUMO's message."""
+    from rclpy.parameter import Parameter
+
+    from mlkm_sumo import SumoError
+    from road_sensors import sumo_sensors
+
+    def failing(*_args, **_kwargs):
+        raise SumoError('SUMO failed to start scenario highway: simulated crash')
+        yield  # a generator, as mlkm_sumo.episodes
+
+    monkeypatch.setattr(sumo_sensors, 'episodes', failing)
+    overrides = [Parameter('stations', value=3), Parameter('wait_for_subscribers', value=0)]
+    node = sumo_sensors.SumoSensorsNode(context=rclpy_context, parameter_overrides=overrides)
+    try:
+        assert node.wait_done(30.0)
+        assert node.exit_code == 2
+        assert node.error == 'SUMO failed: SUMO failed to start scenario highway: simulated crash'
+    finally:
+        node.stop()
+        node.destroy_node()

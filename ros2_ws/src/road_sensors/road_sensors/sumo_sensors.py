@@ -371,6 +371,11 @@ class SumoSensorsNode(Node):
     def exit_code(self) -> int:
         return self._exit_code
 
+    def wait_done(self, timeout: float) -> bool:
+        """Wait until the run ended (finished, failed or interrupted); False on timeout."""
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
     def stop(self) -> None:
         """Interrupt the publishing thread and wait for it (SUMO is closed on the way)."""
         self._stop.set()
