@@ -53,6 +53,10 @@ from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.associators.search import refine
 from mlkm_core.types import Detections, Layout
 
+#: NLL per link [nats] by which the Kalman model may trail the pairwise model on the pairwise
+#: model's own tracks (which favour it) and still be used: on SUMO free-flow traffic it trails
+#: by at most 0.15 and its search still gains; in stop-and-go traffic it trails by 0.35 to 1.1
+FIT_MARGIN = 0.25
 #: above this many detections the search starts from the Kalman pass only (cost; the second
 #: start matters where few detections make the self-calibration noisy)
 DUAL_START_MAX = 5000
@@ -63,10 +67,10 @@ def kalman_fits(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
 
     Both give the density of a track's next detection (stamp, slowness) given its earlier ones,
     so their summed log-likelihoods over the same links (capped as in ``sequence_nll``, lane and
-    length left out: they are the same in both) are comparable. The Kalman model conditions on
-    the whole history and must win when its structure (a cruise speed the target reverts to)
-    holds; where it does not (stop-and-go traffic), its likelihood would steer the local search
-    to wrong exchanges.
+    length left out: they are the same in both) are comparable, up to ``FIT_MARGIN`` per link.
+    The Kalman model conditions on the whole history and must win when its structure (a cruise
+    speed the target reverts to) holds; where it does not (stop-and-go traffic), its likelihood
+    would steer the local search to wrong exchanges.
     """
     p = replace(params, attributes=None)
     a, b = link_pairs(d, labels)
@@ -84,7 +88,7 @@ def kalman_fits(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
     none = np.zeros(seqs.shape[0], bool)
     kalman = float(sequence_nll(layout, d, seqs, p, none, none).sum())
     skipped = float((d.sensor_index[b] - d.sensor_index[a] - 1).sum()) * p.miss_cost
-    return bool(kalman - skipped < pairwise)
+    return bool(kalman - skipped < pairwise + FIT_MARGIN * a.size)
 
 
 @register
