@@ -343,3 +343,45 @@ def test_input_far_beyond_a_methods_size_gets_a_warning(tmp_path, capsys, monkey
     assert 'far beyond what kmeans_pp handles' in err and '--method assignment' in err
     assert _associate(tmp_path, 'in.csv', '--method', 'mlkm') == 0
     assert capsys.readouterr().err == ''
+
+
+def test_stream_writes_the_committed_labels_of_the_streaming_core(tmp_path, capsys):
+    from mlkm_core.metrics import accuracy
+    from mlkm_core.streaming import StreamConfig, StreamTracker
+
+    ds = _write(tmp_path / 'in.csv', seed=2)
+    rc = _associate(tmp_path, 'in.csv', '--method', 'multiframe', '--stream', '--lag', '8')
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert '(multiframe, stream, lag 8 s,' in out
+    assert re.search(r'revision rate: \d+\.\d\d % \(\d+ of \d+ first-published links', out)
+    assert 'commit latency (stamp time): median' in out
+    rows = _out_rows(tmp_path)
+    tracks = np.array([int(r['track_id']) for r in rows])
+    # the same labels as pushing the rows in stamp order through the core (key = row)
+    d = ds.detections
+    tracker = StreamTracker(ds.layout, StreamConfig(method='multiframe', lag=8.0))
+    expected = np.full(len(d), -2)
+    updates = [
+        tracker.push(i, int(d.sensor_index[i]), float(d.stamp[i]), float(d.velocity[i]))
+        for i in np.lexsort((np.arange(len(d)), d.sensor_index, d.stamp)).tolist()
+    ]
+    for u in [*updates, tracker.flush()]:
+        expected[u.committed[:, 0]] = u.committed[:, 1]
+    assert np.array_equal(tracks, expected)
+    acc = accuracy(tracks, d.target)
+    assert acc.accuracy > 0.95 and f'accuracy: {100 * acc.accuracy:.2f} %' in out
+
+
+def test_stream_takes_ramp_positions_and_refuses_bad_ones(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    rc = _associate(
+        tmp_path, 'in.csv', '--method', 'assignment', '--stream', '--exits', '150.5, 300'
+    )
+    assert rc == 0 and 'revision rate:' in capsys.readouterr().out
+    for bad in ('x', 'nan', '-3'):
+        with pytest.raises(SystemExit) as exc:
+            _associate(tmp_path, 'in.csv', '--stream', '--entries', bad)
+        assert exc.value.code == 2
+    assert _associate(tmp_path, 'in.csv', '--stream', '--lag', '0') == 2
+    assert 'lag must be a finite number > 0' in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""``mlkm``: the offline command line (``associate``, ``paper``, ``bench``).
+"""``mlkm``: the offline command line (``associate``, ``paper``, ``sumo``, ``bench``).
 
 ``mlkm associate --input detections.csv --output tracks.csv [--method M] [--segment-size K]
 [--targets N] [--seed S] [--skip-invalid] [--progress]`` reads detections (the format is
@@ -9,8 +9,14 @@ metrics. A malformed file, or one with invalid rows (values outside --min-speed/
 2, and nothing is written; ``--skip-invalid`` associates the valid rows instead and writes the
 invalid ones with track -1 and their reason in a ``rejected`` column.
 
+``--stream [--lag S] [--entries X,..] [--exits X,..]`` associates as the live node does on
+an open road: the rows are pushed in stamp order through ``mlkm_core.streaming`` (any
+method; key = data row number), the committed labels are written, and the revision rate
+(first-published links changed before their commit) and commit latency are printed.
+
 ``mlkm paper`` reproduces the paper's experiments (see ``mlkm_experiments.paper``);
-``mlkm bench ...`` hands its arguments to ``mlkm_experiments.bench.main``.
+``mlkm sumo ...`` to ``mlkm_sumo.cli.main`` and ``mlkm bench ...`` to
+``mlkm_experiments.bench.main``.
 """
 
 from __future__ import annotations
@@ -19,12 +25,12 @@ import argparse
 import csv
 import os
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
+from mlkm_assoc.cli_run import Progress, absolute, run_batch, run_stream
 from mlkm_core.bounds import Bounds
 from mlkm_core.csvio import (
     ENCODING,
@@ -34,7 +40,6 @@ from mlkm_core.csvio import (
     REJECTED,
     REQUIRED,
     TRUTH,
-    CsvDetections,
     InputError,
     InvalidRows,
     write_tracks,
@@ -94,81 +99,6 @@ def _output_problem(output: Path, input_path: Path) -> str | None:
     return None
 
 
-class _Progress:
-    """tqdm bars on stderr, or nothing (no TTY and no --progress)."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled
-
-    def bar(self, desc: str, total: float | None = None, unit: str = 'it', scale: bool = False):
-        if not self.enabled:
-            return None
-        from tqdm import tqdm
-
-        return tqdm(
-            total=total,
-            bar_format=None if total is not None else '{desc}: {elapsed} elapsed',
-            desc=desc,
-            unit=unit,
-            unit_scale=scale,
-            file=sys.stderr,
-            dynamic_ncols=True,
-            leave=False,
-        )
-
-
-def _absolute(bar):
-    """progress(n) callback setting an absolute position on ``bar``."""
-    if bar is None:
-        return None
-
-    def update(n: int) -> None:
-        bar.update(n - bar.n)
-
-    return update
-
-
-def _associate(associator, data: CsvDetections, n_targets: int, progress: _Progress):
-    """Labels of the valid detections, with a per-segment bar where the method supports it."""
-    from mlkm_core.associators import Associator
-
-    layout, dets = data.layout, data.detections
-    incremental = type(associator).session is not Associator.session
-    if progress.enabled and incremental:
-        from mlkm_core.types import segments
-
-        segs = list(segments(layout.n_sensors, associator.config.segment_size))
-        bar = progress.bar(f'associating ({associator.name})', total=len(segs), unit='segment')
-        session = associator.session(layout, n_targets)
-        order, labels = [], np.zeros(0, np.int64)
-        for seg in segs:
-            idx = np.flatnonzero(np.isin(dets.sensor_index, seg))
-            order.append(idx)
-            labels = session.add_segment(dets.subset(idx))
-            bar.update()
-        bar.close()
-        out = np.full(len(dets), -1, np.int64)
-        out[np.concatenate(order)] = labels
-        return out
-    bar = progress.bar(f'associating ({associator.name})', unit='s')
-    if bar is None:
-        return associator.associate(layout, dets, n_targets)
-    done = threading.Event()
-
-    def tick() -> None:  # the method reports nothing: show the elapsed time
-        while not done.wait(1.0):
-            bar.refresh()
-
-    ticker = threading.Thread(target=tick, daemon=True)
-    ticker.start()
-    try:
-        return associator.associate(layout, dets, n_targets)
-    finally:
-        done.set()
-        ticker.join()
-        bar.close()
-
-
 def _listing(problems) -> str:
     lines = [f'  line {p.line}: {p.message} [{p.reason}]' for p in problems[:MAX_LISTED]]
     if len(problems) > MAX_LISTED:
@@ -192,14 +122,15 @@ def cmd_associate(args: argparse.Namespace) -> int:
         associator = make_associator(
             args.method, AssociatorConfig(segment_size=args.segment_size, seed=args.seed)
         )
+        stream = _stream_config(args) if args.stream else None
     except ValueError as exc:
         return _error(str(exc))
-    progress = _Progress(sys.stderr.isatty() if args.progress is None else args.progress)
+    progress = Progress(sys.stderr.isatty() if args.progress is None else args.progress)
     size = input_path.stat().st_size if input_path.is_file() else None
     bar = progress.bar('reading', total=size, unit='B', scale=True)
     failure = None
     try:
-        data = read_csv(input_path, bounds, args.skip_invalid, _absolute(bar))
+        data = read_csv(input_path, bounds, args.skip_invalid, absolute(bar))
     except InvalidRows as exc:
         n = len(exc.problems)
         failure = (
@@ -234,13 +165,17 @@ def cmd_associate(args: argparse.Namespace) -> int:
     n_targets = args.targets or int(np.bincount(dets.sensor_index).max())
     t0 = time.perf_counter()
     try:
-        labels = _associate(associator, data, n_targets, progress)
+        if stream is None:
+            labels = run_batch(associator, data, n_targets, progress)
+        else:
+            streamed = run_stream(data, stream, args.entries, args.exits, progress)
+            labels = streamed.labels
     except ValueError as exc:
         return _error(f'{args.method} cannot associate this input: {exc}')
     elapsed = time.perf_counter() - t0
     bar = progress.bar('writing', total=data.n_rows, unit='row', scale=True)
     try:
-        write_tracks(output, data, labels, args.skip_invalid, _absolute(bar))
+        write_tracks(output, data, labels, args.skip_invalid, absolute(bar))
     except InputError as exc:
         failure = f'{exc}; nothing was written'
     except OSError as exc:
@@ -251,11 +186,14 @@ def cmd_associate(args: argparse.Namespace) -> int:
     if failure:
         return _error(failure)
     n_tracks = np.unique(labels[labels >= 0]).size
+    mode = f'stream, lag {stream.lag:g} s' if stream else f'{n_targets} targets'
     print(
         f'{len(dets)} detections from {layout.n_sensors} sensors -> {n_tracks} tracks '
-        f'({args.method}, {n_targets} targets, {elapsed:.1f} s) written to {args.output}'
+        f'({args.method}, {mode}, {elapsed:.1f} s) written to {args.output}'
         + (f'; {len(rejected)} invalid rows written as rejected' if rejected else '')
     )
+    if stream is not None:
+        _print_stream(streamed)
     if dets.target is not None:
         s = score(dets, labels)
         print(f'accuracy: {100 * s.accuracy:.2f} % ({s.correct}/{s.total})')
@@ -266,6 +204,29 @@ def cmd_associate(args: argparse.Namespace) -> int:
             f'adjusted Rand index: {s.adjusted_rand_index:.4f}'
         )
     return 0
+
+
+def _stream_config(args: argparse.Namespace):
+    from mlkm_core.streaming import StreamConfig
+
+    return StreamConfig(
+        method=args.method, lag=args.lag, segment_size=args.segment_size, seed=args.seed
+    )
+
+
+def _print_stream(result) -> None:
+    st = result.stats
+    print(
+        f'revision rate: {100 * st["revision_rate"]:.2f} % ({st["revised"]} of '
+        f'{st["committed"]} first-published links changed before their commit)'
+    )
+    waited = result.latency[np.isfinite(result.latency)]
+    if waited.size:
+        print(
+            f'commit latency (stamp time): median {np.median(waited):.1f} s, '
+            f'max {waited.max():.1f} s; {st["false_alarms"]} false alarms, '
+            f'{st["final_tracks"]} tracks'
+        )
 
 
 def cmd_paper(args: argparse.Namespace) -> int:
@@ -303,6 +264,13 @@ def _finite(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError('must be finite')
     return value
+
+
+def _positions(text: str) -> tuple[float, ...]:
+    values = tuple(_finite(x) for x in text.split(',') if x.strip())
+    if any(v < 0 for v in values):
+        raise argparse.ArgumentTypeError('positions must be >= 0')
+    return values
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -357,6 +325,27 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help='progress bars on stderr (default: only when stderr is a terminal)',
     )
+    from mlkm_core.streaming import StreamConfig
+
+    a.add_argument(
+        '--stream',
+        action='store_true',
+        help='associate as a stream (pushes in stamp order, links committed after --lag)',
+    )
+    a.add_argument(
+        '--lag',
+        type=_finite,
+        default=StreamConfig.lag,
+        help=f'with --stream: stamp time [s] a link may still be revised (default: '
+        f'{StreamConfig.lag:g})',
+    )
+    for flag, what in (('--entries', 'on-ramps'), ('--exits', 'off-ramps')):
+        a.add_argument(
+            flag,
+            type=_positions,
+            default=(),
+            help=f'with --stream: positions [m] of {what} between stations, comma-separated',
+        )
     a.set_defaults(func=cmd_associate)
     p = sub.add_parser('paper', help="reproduce the paper's experiments")
     p.add_argument(
@@ -383,6 +372,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser(
         'bench', help='benchmarks (arguments go to mlkm_experiments.bench)', add_help=False
     )
+    sub.add_parser(
+        'sumo', help='run a SUMO scenario into a detections CSV (mlkm sumo --help)', add_help=False
+    )
     return parser
 
 
@@ -392,6 +384,10 @@ def main(argv: list[str] | None = None) -> int:
         from mlkm_experiments import bench
 
         return int(bench.main(argv[1:]) or 0)
+    if argv and argv[0] == 'sumo':
+        from mlkm_sumo import cli as sumo
+
+        return int(sumo.main(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     return int(args.func(args))
 

@@ -1,0 +1,509 @@
+"""``StreamTracker``: the fixed-lag streaming associator (mechanism in ``mlkm_core.streaming``)."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from collections.abc import Sequence
+
+import numpy as np
+
+from mlkm_core.associators import make_associator
+from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.streaming.config import (
+    CONFIRMED,
+    FINAL,
+    TENTATIVE,
+    StreamConfig,
+    StreamUpdate,
+    TrackUpdate,
+)
+from mlkm_core.streaming.window import owners, solve_window
+from mlkm_core.types import UNKNOWN_LANE, Detections, Layout
+
+#: the counters of ``StreamTracker.stats``
+COUNTERS = (
+    'pushed',
+    'linked',
+    'started',
+    'late',
+    'reordered',
+    'rejected',
+    'solves',
+    'degraded',
+    'committed',
+    'assigned',
+    'false_alarms',
+    'revised',
+    'final_tracks',
+)
+#: fewest detections the motion model is calibrated on (below, the last estimate is kept)
+MIN_CALIBRATION = 20
+
+
+class _Det:
+    __slots__ = ('key', 'sensor', 'stamp', 'velocity', 'lane', 'length', 'track', 'first', 'born')
+
+    def __init__(self, key, sensor, stamp, velocity, lane, length) -> None:
+        self.key, self.sensor, self.stamp, self.velocity = key, sensor, stamp, velocity
+        self.lane, self.length = lane, length
+        self.track = -1  # current track id (tentative or committed)
+        self.first = -1  # track id first published
+        self.born = False  # the push started a new track
+
+
+def _canon(d: _Det) -> tuple[int, float, float, int]:
+    return d.sensor, d.stamp, d.velocity, d.key
+
+
+class StreamTracker:
+    """Associates an endless stream of detections into tracks with a fixed commit lag."""
+
+    def __init__(
+        self,
+        layout: Layout,
+        config: StreamConfig = StreamConfig(),  # noqa: B008  (frozen, immutable)
+        entries: Sequence[float] = (),
+        exits: Sequence[float] = (),
+    ) -> None:
+        self.layout = layout
+        self.config = config
+        self._associator = make_associator(config.method, config.associator_config())
+        pos = layout.positions
+        n_s = layout.n_sensors
+        # a station right after an on-ramp (or the first) may see births; a station right
+        # before an off-ramp may be the last one a vehicle passes
+        self._after_entry = np.zeros(n_s, bool)
+        self._after_entry[0] = True
+        self._before_exit = np.zeros(n_s, bool)
+        self._before_exit[-1] = True
+        for name, values in (('entries', entries), ('exits', exits)):
+            for x in values:
+                if not math.isfinite(float(x)):
+                    raise ValueError(f'{name} positions must be finite, got {x!r}')
+        for x in entries:
+            s = int(np.searchsorted(pos, float(x)))
+            if s < n_s:
+                self._after_entry[s] = True
+        for x in exits:
+            s = int(np.searchsorted(pos, float(x))) - 1
+            if s >= 0:
+                self._before_exit[s] = True
+        self._dets: dict[int, _Det] = {}
+        self._tracks: dict[int, set[int]] = {}  # id -> keys of its detections
+        self._n_committed: dict[int, int] = {}
+        self._pending: set[int] = set()
+        self._tails: list[set[int]] = [set() for _ in range(n_s)]
+        self._tail_of: dict[int, int] = {}  # track -> key of its most downstream detection
+        self._history: deque = deque(maxlen=config.calibration_size)
+        self._params = MotionParams()
+        self._calibrated_at: int | None = None
+        self._ever_committed = False
+        self._next_k: int | None = None
+        self._solved = False
+        self._newest = -math.inf
+        self._committed_until = -math.inf
+        self._next_id = 0
+        self._stats: Counter = Counter()
+        self._begin()
+
+    # ----------------------------------------------------------------- public surface
+    @property
+    def working_set(self) -> int:
+        """Detections held: uncommitted ones and those of tracks not yet final."""
+        return len(self._dets)
+
+    @property
+    def committed_until(self) -> float:
+        return self._committed_until
+
+    @property
+    def params(self) -> MotionParams:
+        """The motion model calibrated on the stream so far."""
+        return self._params
+
+    def stats(self) -> dict:
+        """Counters: pushed, linked, started, late, reordered, committed, assigned,
+        false_alarms, revised, solves, degraded, final_tracks, rejected; and the gauges
+        working_set, open_tracks and revision_rate (revised / committed)."""
+        out = {name: self._stats[name] for name in COUNTERS}
+        out['working_set'] = self.working_set
+        out['open_tracks'] = len(self._tracks)
+        out['revision_rate'] = out['revised'] / out['committed'] if out['committed'] else 0.0
+        return out
+
+    def push(
+        self,
+        key: int,
+        sensor_index: int,
+        stamp: float,
+        velocity: float,
+        lane: int = UNKNOWN_LANE,
+        length: float = math.nan,
+    ) -> StreamUpdate:
+        """Link one detection at once; revise and commit what its stamp lets (module doc)."""
+        key, sensor_index, stamp, velocity = self._validate(key, sensor_index, stamp, velocity)
+        self._stats['pushed'] += 1
+        self._begin()
+        if stamp < self._committed_until:
+            self._stats['late'] += 1
+            self._unassigned.append(key)
+            self._committed.append((key, -1))
+            return self._end()
+        if self._solved and stamp < (self._next_k - 1) * self.config.solve_interval:
+            self._stats['reordered'] += 1  # a solve that should have seen it is done
+        first_k = math.floor(stamp / self.config.solve_interval) + 1
+        if not self._solved:
+            self._next_k = first_k if self._next_k is None else min(self._next_k, first_k)
+        self._newest = max(self._newest, stamp)
+        self._advance()
+        d = _Det(key, sensor_index, stamp, velocity, int(lane), float(length))
+        self._dets[key] = d
+        self._pending.add(key)
+        tid = self._link_now(d)
+        if tid >= 0:
+            self._stats['linked'] += 1
+        else:
+            self._stats['started'] += 1
+            tid = self._new_track()
+            d.born = True
+        d.first = tid
+        self._move(d, tid)
+        self._retail(tid)
+        return self._end()
+
+    def flush(self) -> StreamUpdate:
+        """Commit everything and finalise every track (the road fell quiet, or input ended)."""
+        self._begin()
+        if self._dets:
+            self._solve(None)
+        self._committed_until = max(self._committed_until, self._newest)
+        if math.isfinite(self._newest):
+            self._next_k = math.floor(self._newest / self.config.solve_interval) + 1
+            self._solved = True
+        return self._end()
+
+    # ----------------------------------------------------------------- input
+    def _validate(self, key, sensor_index, stamp, velocity) -> tuple[int, int, float, float]:
+        problem = None
+        try:
+            key, sensor_index = int(key), int(sensor_index)
+            stamp, velocity = float(stamp), float(velocity)
+        except (TypeError, ValueError) as exc:
+            problem = f'not a number: {exc}'
+        else:
+            if key in self._dets:
+                problem = f'key {key} is already held'
+            elif not 0 <= sensor_index < self.layout.n_sensors:
+                problem = (
+                    f'sensor_index {sensor_index} outside the layout '
+                    f'(0..{self.layout.n_sensors - 1})'
+                )
+            elif not math.isfinite(stamp):
+                problem = f'stamp must be finite, got {stamp!r}'
+            elif not (math.isfinite(velocity) and velocity > 0):
+                problem = f'velocity must be finite and > 0, got {velocity!r}'
+        if problem:
+            self._stats['rejected'] += 1
+            raise ValueError(f'detection refused: {problem}')
+        return key, sensor_index, stamp, velocity
+
+    # ----------------------------------------------------------------- bookkeeping
+    def _begin(self) -> None:
+        self._changed: set[int] = set()
+        self._gone: dict[int, np.ndarray] = {}
+        self._unassigned: list[int] = []
+        self._committed: list[tuple[int, int]] = []
+
+    def _end(self) -> StreamUpdate:
+        tracks = [TrackUpdate(t, FINAL, keys) for t, keys in sorted(self._gone.items())]
+        for t in sorted(self._changed - set(self._gone)):
+            if t in self._tracks:
+                tracks.append(TrackUpdate(t, self._status(t), self._keys(t)))
+        return StreamUpdate(
+            tracks,
+            np.array(self._unassigned, np.int64),
+            self._committed_until,
+            np.array(self._committed, np.int64).reshape(-1, 2),
+        )
+
+    def _status(self, tid: int) -> int:
+        return CONFIRMED if len(self._tracks[tid]) >= self.config.confirm_count else TENTATIVE
+
+    def _keys(self, tid: int) -> np.ndarray:
+        dets = sorted((self._dets[k] for k in self._tracks[tid]), key=lambda d: (d.stamp, d.key))
+        return np.array([d.key for d in dets], np.int64)
+
+    def _new_track(self) -> int:
+        tid = self._next_id
+        self._next_id += 1
+        self._tracks[tid] = set()
+        self._n_committed[tid] = 0
+        return tid
+
+    def _drop_track(self, tid: int, keys: np.ndarray) -> None:
+        self._tracks.pop(tid)
+        self._n_committed.pop(tid)
+        self._untail(tid)
+        self._gone[tid] = keys
+        self._changed.discard(tid)
+
+    def _move(self, d: _Det, tid: int) -> None:
+        """Put ``d`` into track ``tid`` (-1: out of every track)."""
+        old = d.track
+        if old == tid:
+            return
+        if old >= 0:
+            self._tracks[old].discard(d.key)
+            self._changed.add(old)
+        d.track = tid
+        if tid >= 0:
+            self._tracks[tid].add(d.key)
+            self._changed.add(tid)
+
+    def _untail(self, tid: int) -> None:
+        tail = self._tail_of.pop(tid, None)
+        if tail is not None:
+            self._tails[tail[1]].discard(tid)
+
+    def _retail(self, tid: int) -> None:
+        """Recompute the most downstream detection of ``tid`` (drops the track when empty)."""
+        self._untail(tid)
+        members = self._tracks.get(tid)
+        if members is None:
+            return
+        if not members:
+            self._drop_track(tid, np.zeros(0, np.int64))
+            return
+        tail = max((self._dets[k] for k in members), key=lambda d: (d.sensor, d.stamp))
+        self._tail_of[tid] = (tail.key, tail.sensor)
+        self._tails[tail.sensor].add(tid)
+
+    # ----------------------------------------------------------------- immediate link
+    def _link_now(self, d: _Det) -> int:
+        """Best open track for ``d`` by the gated pairwise prediction from its latest
+        detection (1 + max_skip stations upstream at most), or -1 for a new track."""
+        p = self._params
+        s = d.sensor
+        cands = [
+            (tid, self._dets[self._tail_of[tid][0]])
+            for j in range(max(0, s - 1 - p.max_skip), s)
+            for tid in self._tails[j]
+        ]
+        cands = [(tid, t) for tid, t in cands if t.stamp < d.stamp]
+        if not cands:
+            return -1
+        n = len(cands)
+        ids = np.arange(n)
+        sensors = np.array([t.sensor for _, t in cands])
+        model = PairwiseModel(p)
+        model.grow(n)
+        model.start(
+            ids,
+            self.layout.positions[sensors],
+            np.array([t.stamp for _, t in cands]),
+            1.0 / np.array([t.velocity for _, t in cands]),
+        )
+        pred = model.predict(ids, float(self.layout.positions[s]))
+        with np.errstate(all='ignore'):
+            nll, d2 = model.cost(pred, np.full(n, d.stamp), np.full(n, 1.0 / d.velocity))
+        birth = p.miss_cost if self._after_entry[s] else p.new_cost
+        w = nll + (s - 1 - sensors) * p.miss_cost - p.miss_cost - birth
+        w = np.where((d2 <= p.gate) & np.isfinite(w), w, np.inf)
+        best = int(np.argmin(w))
+        return int(cands[best][0]) if w[best] < 0 else -1
+
+    # ----------------------------------------------------------------- revision and commit
+    def _advance(self) -> None:
+        """Solve every boundary the newest stamp has passed by the reorder tolerance."""
+        c = self.config
+        if self._next_k is None:
+            return
+        last_k = math.floor((self._newest - c.reorder_tolerance) / c.solve_interval)
+        while self._next_k <= last_k:
+            if not self._dets:
+                # nothing held: the boundaries in between would change nothing
+                self._next_k = last_k
+                self._committed_until = max(
+                    self._committed_until, last_k * c.solve_interval - c.lag
+                )
+            self._solve(self._next_k)
+            self._next_k += 1
+
+    def _anchors(self) -> list[tuple[_Det, int, bool]]:
+        """(detection, track, is the track's last) of each open track's last committed ones."""
+        out = []
+        depth = self.config.anchor_depth
+        for tid, members in self._tracks.items():
+            if not self._n_committed[tid]:
+                continue
+            done = sorted(
+                (self._dets[k] for k in members if k not in self._pending),
+                key=lambda d: (d.sensor, d.stamp),
+            )[-depth:]
+            out += [(d, tid, i == len(done) - 1) for i, d in enumerate(done)]
+        return out
+
+    def _solve(self, k: int | None) -> None:
+        """Re-solve the window below boundary k (None: everything, at a flush), commit what
+        fell out of the lag and finalise the tracks that ended."""
+        c = self.config
+        final = k is None
+        bound = math.inf if final else k * c.solve_interval
+        cutoff = math.inf if final else bound - c.lag
+        window = sorted(
+            (self._dets[key] for key in self._pending if self._dets[key].stamp < bound),
+            key=_canon,
+        )
+        self._solved = True
+        if window:
+            self._stats['solves'] += 1
+            anchors = sorted(self._anchors(), key=lambda a: _canon(a[0]))
+            rows = [a[0] for a in anchors] + window
+            dets = Detections(
+                np.array([d.sensor for d in rows], np.int64),
+                np.array([d.stamp for d in rows]),
+                np.array([d.velocity for d in rows]),
+            )
+            if not final:
+                self._calibrate(k, window)
+            params = self._params if self._ever_committed else None
+            labels, degraded = solve_window(self._associator, self.layout, dets, params)
+            self._stats['degraded'] += degraded
+            n_a = len(anchors)
+            anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)
+            last = np.array([a[2] for a in anchors] + [False] * len(window), bool)
+            occupied = {
+                tid: {self._dets[k].sensor for k in self._tracks[tid] if k not in self._pending}
+                for tid in set(anchor_track[:n_a].tolist())
+            }
+            own, groups = owners(labels, dets.sensor_index, anchor_track, last, occupied)
+            self._apply(window, own[n_a:], [g - n_a for g in groups])
+            self._commit([d for d in window if d.stamp < cutoff], bound)
+        self._committed_until = max(self._committed_until, cutoff)
+        self._finalize(bound, final)
+
+    def _apply(self, window: list[_Det], own: np.ndarray, groups: list[np.ndarray]) -> None:
+        """Move the window's detections to the tracks of the solve."""
+        target = {d.key: int(t) for d, t in zip(window, own, strict=True) if t >= 0}
+        claimed = set(target.values())
+        groups = sorted(groups, key=lambda g: min((window[i].stamp, window[i].sensor) for i in g))
+        for g in groups:
+            votes = Counter(
+                window[i].track
+                for i in g
+                if window[i].track >= 0
+                and not self._n_committed.get(window[i].track, 1)
+                and window[i].track not in claimed
+            )
+            if votes:
+                tid = min(votes, key=lambda t: (-votes[t], t))
+            else:
+                tid = self._new_track()
+            claimed.add(tid)
+            for i in g:
+                target[window[i].key] = tid
+        touched = set()
+        for d in window:
+            touched.add(d.track)
+            self._move(d, target[d.key])
+            touched.add(d.track)
+        for tid in touched:
+            self._retail(tid)
+
+    def _commit(self, due: list[_Det], bound: float) -> None:
+        """Commit ``due`` (canonical order): a detection whose track has another detection
+        below the boundary keeps it for good, one alone is a false alarm (-1)."""
+        touched = set()
+        for d in due:
+            tid = d.track
+            size = sum(
+                1
+                for k in self._tracks[tid]
+                if k not in self._pending or self._dets[k].stamp < bound
+            )
+            self._pending.discard(d.key)
+            self._stats['committed'] += 1
+            if size >= 2:
+                label = tid
+                self._n_committed[tid] += 1
+                self._stats['assigned'] += 1
+            else:
+                label = -1
+                self._move(d, -1)
+                del self._dets[d.key]
+                touched.add(tid)
+                self._unassigned.append(d.key)
+                self._stats['false_alarms'] += 1
+            if label != d.first and not (label == -1 and d.born):
+                self._stats['revised'] += 1
+            self._committed.append((d.key, label))
+            self._history.append((d.sensor, d.stamp, d.velocity))
+            self._ever_committed = True
+        for tid in touched:
+            self._retail(tid)
+
+    def _due(self, tail: _Det) -> float:
+        """Stamp after which a track ending at ``tail`` is over: its passage at the next
+        station (before an off-ramp) or 1 + max_skip stations on is beyond the gate."""
+        p = self._params
+        span = 1 if self._before_exit[tail.sensor] else 1 + p.max_skip
+        to = min(tail.sensor + span, self.layout.n_sensors - 1)
+        model = PairwiseModel(p)
+        model.grow(1)
+        ids = np.zeros(1, np.int64)
+        model.start(
+            ids,
+            self.layout.positions[tail.sensor],
+            np.array([tail.stamp]),
+            np.array([1.0 / tail.velocity]),
+        )
+        with np.errstate(all='ignore'):
+            centre, half = model.gate_window(model.predict(ids, float(self.layout.positions[to])))
+        due = float(centre[0] + half[0])
+        return due if math.isfinite(due) else tail.stamp
+
+    def _finalize(self, bound: float, everything: bool) -> None:
+        """FINAL: a track whose detections below the boundary are all committed and that
+        passed the last station, left at an exit or is overdue (``_due``)."""
+        last_s = self.layout.n_sensors - 1
+        for tid in list(self._tracks):
+            members = [self._dets[k] for k in self._tracks[tid]]
+            if not everything:
+                if not self._n_committed[tid] or any(
+                    d.key in self._pending and d.stamp < bound for d in members
+                ):
+                    continue
+                done = [d for d in members if d.key not in self._pending]
+                tail = max(done, key=lambda d: (d.sensor, d.stamp))
+                if tail.sensor != last_s and bound <= self._due(tail):
+                    continue
+            later = [d for d in members if d.key in self._pending]
+            done = sorted(
+                (d for d in members if d.key not in self._pending), key=lambda d: (d.stamp, d.key)
+            )
+            if later:  # linked at once to a track that is over: they start their own
+                new = self._new_track()
+                for d in later:
+                    self._move(d, new)
+                self._retail(new)
+            self._drop_track(tid, np.array([d.key for d in done], np.int64))
+            for d in done:
+                del self._dets[d.key]
+            self._stats['final_tracks'] += 1
+
+    def _calibrate(self, k: int, window: list[_Det]) -> None:
+        """Re-estimate the motion model on the history and the window, every
+        ``calibration_every`` solves (a function of the data and the boundaries only)."""
+        c = self.config
+        if self._calibrated_at is not None and k - self._calibrated_at < c.calibration_every:
+            return
+        rows = list(self._history) + [(d.sensor, d.stamp, d.velocity) for d in window]
+        if len(rows) < MIN_CALIBRATION:
+            return
+        arr = np.array(rows)
+        self._params = estimate_params(
+            self.layout, Detections(arr[:, 0].astype(np.int64), arr[:, 1], arr[:, 2])
+        )
+        self._calibrated_at = k
