@@ -138,6 +138,13 @@ def filled(name: str):
             truth_expected=1010,
             truth_received=1009,
             episodes_incomplete=2,
+            mode=cls.MODE_STREAM,
+            window_start=Time(sec=120),
+            window_end=Time(sec=180, nanosec=5),
+            revision_rate=0.125,
+            links_published=800,
+            links_revised=100,
+            cumulative_revision_rate=0.0625,
         )
     raise KeyError(name)
 

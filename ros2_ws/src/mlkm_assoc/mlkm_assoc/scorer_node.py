@@ -1,7 +1,10 @@
 """``mlkm_assoc scorer_node``: scores each episode's final tracks against ground truth.
 
 Joins the FINAL TrackArray of an episode with its GroundTruth messages on (sensor id, lane,
-stamp in integer ns; lane -1 where unknown) and calls the core's one scoring function, ``mlkm_core.metrics.score``.
+stamp in integer ns; lane -1 where unknown) and calls the core's one scoring function,
+``mlkm_core.metrics.score``. Stream tracks of an open road (TrackArray MODE_STREAM) are
+scored per window of stamp time instead (parameters ``mode``, ``window``; the logic is
+:mod:`mlkm_assoc.stream_scoring`).
 
 * Complete truth: EpisodeInfo ENDED says how many detections each sensor published, and one
   GroundTruth was published for each. The node waits for all of them (truth arriving after
@@ -39,6 +42,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
+from mlkm_assoc.stream_scoring import STREAM_SPECS, StreamScoring
 from mlkm_core.metrics import score
 from mlkm_core.types import Detections
 from mlkm_ros import conversions as conv
@@ -106,6 +110,8 @@ SPECS = [
         read_only=True,
     ),
 ]
+
+SPECS += STREAM_SPECS
 
 #: Reasons an input is rejected (counted in /diagnostics).
 REJECT_REASONS = (
@@ -177,6 +183,7 @@ class ScorerNode(Node):
         super().__init__(node_name, **kwargs)
         values = declare_parameters(self, SPECS, self._on_change)
         diag_period: float = values.pop('diagnostics_period')
+        stream_mode, window = values.pop('mode'), values.pop('window')
         self._config: ScorerConfig = ScorerConfig(**values)
         self._open: dict[int, _Episode] = {}  # unscored episodes, by id
         self._scored: OrderedDict[int, _Scored] = OrderedDict()  # oldest first
@@ -210,6 +217,17 @@ class ScorerNode(Node):
                 SensorLayout, qos.LAYOUT_TOPIC, self._on_layout, qos.LAYOUT_QOS
             ),
         ]
+        self._stream = StreamScoring(
+            self,
+            self._score_pub,
+            stream_mode,
+            window,
+            self._config.truth_timeout,
+            self._config.max_buffered_truth,
+            lambda sensor_id: self._sensor_index.get(sensor_id, sensor_id),
+            self._reject,
+            self._forget_unannounced,
+        )
         self._timer = self.create_timer(0.5, self._on_timer)
         self._diag_timer = self.create_timer(diag_period, self._publish_diagnostics)
 
@@ -240,6 +258,7 @@ class ScorerNode(Node):
         self._sensor_index = {int(msg.sensor_ids[i]): rank for rank, i in enumerate(order)}
 
     def _on_episode(self, msg: EpisodeInfo) -> None:
+        self._stream.episode_info()
         try:
             info = conv.episode_from_msg(msg)
         except ValueError as exc:
@@ -270,6 +289,8 @@ class ScorerNode(Node):
         self._try(episode)
 
     def _on_truth(self, msg: GroundTruth) -> None:
+        if self._stream.take_truth(msg):
+            return
         try:
             stamp = _stamp_ns(msg.header.stamp)
         except ValueError as exc:
@@ -298,6 +319,8 @@ class ScorerNode(Node):
         self._try(episode)
 
     def _on_tracks(self, msg: TrackArray) -> None:
+        if self._stream.take_tracks(msg):
+            return
         try:
             stamps = _check_tracks(msg)
         except ValueError as exc:
@@ -318,6 +341,7 @@ class ScorerNode(Node):
 
     def _on_timer(self) -> None:
         now, cfg = time.monotonic(), self._config
+        self._stream.tick(now)
         for episode, ep in list(self._open.items()):
             if ep.final is not None and now - ep.final_rx > cfg.truth_timeout:
                 self.get_logger().warning(
@@ -343,6 +367,13 @@ class ScorerNode(Node):
             ep = self._open[episode] = _Episode(last_rx=now)
         ep.last_rx = now
         return ep
+
+    def _forget_unannounced(self) -> None:
+        """The source is a stream: drop the truth held for episodes no EpisodeInfo announced
+        (stream mode kept its own copy)."""
+        for episode, ep in list(self._open.items()):
+            if ep.window is None and ep.final is None:
+                self._buffered -= len(self._open.pop(episode).truth)
 
     def _drop(self, episode: int, why: str) -> None:
         ep = self._open.pop(episode)
@@ -487,6 +518,7 @@ class ScorerNode(Node):
             'runs': self._runs,
             **{f'rejected_{r}': n for r, n in sorted(self._rejected.items())},
             **dict(sorted(self._events.items())),
+            **self._stream.diagnostics(),
         }
         self._diag_pub.publish(
             conv.diagnostics_to_msg(
