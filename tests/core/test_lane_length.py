@@ -122,6 +122,29 @@ def test_lane_change_between_two_stations_keeps_the_track(method):
     assert accuracy(labels, d.target).accuracy == 1.0
 
 
+@pytest.mark.parametrize('method', ['assignment', 'multiframe', 'mlkm_robust'])
+def test_double_report_of_a_lane_change_on_a_station_keeps_the_track(method):
+    layout, cols = background(40, 7)
+    # vehicle 9 changes lane on top of sensor 5: the old lane's loop reports it too (a false
+    # alarm with the same stamp, speed and length), the new lane carries on downstream
+    lanes = np.array(cols['lane'])
+    own = np.array(cols['target']) == 9
+    sensor = np.array(cols['sensor'])
+    old = int(lanes[own][0])
+    new_lane = 1 if old != 1 else 2
+    lanes[own & (sensor >= 5)] = new_lane
+    cols['lane'] = lanes.tolist()
+    at5 = np.flatnonzero(own & (sensor == 5))[0]
+    for key, value in (('sensor', 5), ('target', -1), ('lane', old)):
+        cols[key].append(value)
+    for key in ('stamp', 'speed', 'length'):
+        cols[key].append(cols[key][at5])
+    d = detections(cols)
+    labels = make_associator(method).associate(layout, d, 40)
+    assert len(set(labels[d.target == 9])) == 1
+    assert accuracy(labels, d.target).accuracy == 1.0
+
+
 @pytest.mark.parametrize(('noise', 'change'), [(0.3, 0.05), (0.6, 0.15)])
 def test_fit_recovers_length_noise_and_lane_change_probability(noise, change):
     layout, cols = background(150, 3, change_prob=change, length_noise=noise)

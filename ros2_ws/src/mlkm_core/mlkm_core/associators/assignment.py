@@ -26,7 +26,7 @@ import numpy as np
 
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.linking import link, merge_double_reports, relabel
 from mlkm_core.types import Detections, Layout
 
 
@@ -40,5 +40,6 @@ class AssignmentAssociator(Associator):
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d):
             params = estimate_params(layout, d)
-            out[order] = relabel(link(layout, d, params, 'pairwise'))
+            raw = link(layout, d, params, 'pairwise')
+            out[order] = relabel(merge_double_reports(d, raw, params))
         return out

@@ -22,6 +22,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
@@ -166,3 +168,69 @@ def link(
                 att.start(ids, idx[new])
             labels[idx[new]] = ids
     return labels
+
+
+def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams) -> np.ndarray:
+    """Join a track that ends at a sensor with one that starts there on a twin detection.
+
+    A vehicle changing lane on top of a loop station is reported by both lanes' loops: two
+    detections at one sensor, in adjacent lanes, with the same stamp, speed and length (up to
+    the noise). The forward pass links one of them to the vehicle's track and starts a new
+    track from the other, and the new lane's report usually carries on (its lane matches the
+    next detections), so the vehicle's track ends there and its rest gets a new label. Here a
+    track of two detections or more that ends at sensor s on detection a is given the label of
+    the track that starts at s on a twin b of a and continues (|dt|, |dv|, |d length| within 3
+    standard deviations of a difference, lanes known and adjacent). Both reports then share
+    the label (one is a false alarm: its label does not count); the result may have two
+    detections of a track at one sensor, so this runs after the association proper.
+    """
+    if d.lane is None or len(d) == 0:
+        return labels
+    out = labels.copy()
+    valid = np.flatnonzero(out >= 0)
+    if valid.size == 0:
+        return out
+    order = valid[np.lexsort((d.sensor_index[valid], out[valid]))]
+    lab = out[order]
+    head = np.r_[True, lab[1:] != lab[:-1]]
+    tail = np.r_[lab[1:] != lab[:-1], True]
+    ends = order[tail & ~head]  # last detection of a track with two or more
+    starts = order[head & ~tail]  # first detection of a track with two or more
+    if ends.size == 0 or starts.size == 0:
+        return out
+    k = 3 * math.sqrt(2)
+    tol_t = k * max(params.stamp_noise, 0.05) + 0.2
+    tol_v = k * max(params.velocity_noise, 0.05)
+    att = params.attributes
+    tol_l = k * max(att.params.length_noise if att is not None else 0.3, 0.05)
+    key_s = d.sensor_index[starts]
+    merged: dict[int, int] = {}
+    for a in ends.tolist():
+        cand = starts[key_s == d.sensor_index[a]]
+        if cand.size == 0:
+            continue
+        ok = (np.abs(d.stamp[cand] - d.stamp[a]) <= tol_t) & (
+            np.abs(d.velocity[cand] - d.velocity[a]) <= tol_v
+        )
+        ok &= (d.lane[a] >= 0) & (d.lane[cand] >= 0) & (np.abs(d.lane[cand] - d.lane[a]) == 1)
+        if d.length is not None:
+            dl = np.abs(d.length[cand] - d.length[a])
+            ok &= ~(dl > tol_l)
+        cand = cand[ok]
+        cand = cand[[int(out[c]) not in merged for c in cand]]
+        if cand.size == 0:
+            continue
+        b = int(cand[np.argmin(np.abs(d.stamp[cand] - d.stamp[a]))])
+        merged[int(out[b])] = int(out[a])
+    if merged:
+
+        def root(x: int) -> int:
+            while x in merged:
+                x = merged[x]
+            return x
+
+        mapping = np.arange(int(out.max()) + 1)
+        for src in merged:
+            mapping[src] = root(src)
+        out[valid] = mapping[out[valid]]
+    return out

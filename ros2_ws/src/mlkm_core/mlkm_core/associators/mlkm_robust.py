@@ -33,7 +33,7 @@ import numpy as np
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.kmeans import kmeans_labels
-from mlkm_core.associators.linking import match_sparse, relabel
+from mlkm_core.associators.linking import match_sparse, merge_double_reports, relabel
 from mlkm_core.associators.mlkm import detect_errors
 from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.types import Detections, Layout, segments
@@ -260,5 +260,5 @@ class RobustMLKM(Associator):
                 end_det[ids[k]] = int(last[k])
                 end_seg[ids[k]] = e
             track[idx] = ids[local]
-        out[order] = relabel(track)
+        out[order] = relabel(merge_double_reports(d, track, p))
         return out

@@ -48,7 +48,7 @@ from mlkm_core.associators.base import (
 )
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.likelihood import sequence_nll, total_nll, track_sequences
-from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.linking import link, merge_double_reports, relabel
 from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.associators.search import refine
 from mlkm_core.types import Detections, Layout
@@ -113,7 +113,7 @@ class MultiFrameAssociator(Associator):
                 DegradedResultWarning,
                 stacklevel=2,
             )
-            out[order] = relabel(pairwise)
+            out[order] = relabel(merge_double_reports(d, pairwise, params))
             return out
         # local search from two starting points (the Kalman and the pairwise forward pass);
         # keep the more likely result under the Kalman model
@@ -141,5 +141,5 @@ class MultiFrameAssociator(Associator):
                 stacklevel=2,
             )
             best = pairwise
-        out[order] = relabel(best)
+        out[order] = relabel(merge_double_reports(d, best, params))
         return out
