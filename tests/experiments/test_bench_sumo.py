@@ -93,3 +93,17 @@ def test_budgeted_run_reports_a_crashing_child():
     rows, status = common.run_budgeted(make_job, 3, budget=60.0)
     assert rows == [{'k': 0}]
     assert status.startswith('crashed after 1 datasets')
+
+
+def test_a_failing_part_is_reported_and_fails_the_run(tmp_path, monkeypatch):
+    from mlkm_experiments import bench
+
+    def broken(*args, **kwargs):
+        raise RuntimeError('netconvert missing')
+
+    monkeypatch.setattr(sumo, 'run_sumo', broken)
+    assert bench.main(['--only', 'sumo', '--out', str(tmp_path)]) == 1
+    data = json.loads((tmp_path / 'sumo.json').read_text())
+    assert data['status'] == 'failed: RuntimeError: netconvert missing'
+    readme = (tmp_path / 'README.md').read_text()
+    assert '## SUMO traffic\n\nfailed: RuntimeError: netconvert missing' in readme

@@ -7,6 +7,7 @@ import datetime as dt
 import json
 import sys
 import time
+import traceback
 from pathlib import Path
 
 from mlkm_core.associators import available_methods
@@ -95,9 +96,15 @@ def main(argv: list[str] | None = None) -> int:
         ),
     }
     log(f'parts: {", ".join(parts)}; methods: {", ".join(methods)}')
+    failed = []
     for part in parts:
         t0 = time.monotonic()
-        data = runners[part]()
+        try:
+            data = runners[part]()
+        except Exception as exc:  # one broken part must not cost the others' results
+            log(f'{part}: failed: {traceback.format_exc()}')
+            data = {'status': f'failed: {type(exc).__name__}: {exc}'}
+            failed.append(part)
         data['wall_s'] = time.monotonic() - t0
         data['date'] = _now()
         save(part, data)
@@ -119,5 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     for t in targets:
         log(f'target: {t["target"]}: {t["met"]} ({t["value"]})')
     log(f'done in {meta["seconds"] / 60:.1f} min; wrote {out_dir}')
+    if failed:
+        log(f'failed parts: {", ".join(failed)}')
     logf.close()
-    return 0
+    return 1 if failed else 0
