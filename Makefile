@@ -6,16 +6,19 @@ SHELL := /bin/bash
 ENV := source ./env.sh >/dev/null &&
 BAG ?= bags/sample
 
-.PHONY: help setup demo test lint experiments replay bench clean
+.PHONY: help setup demo demo-stream test lint experiments replay bench clean
 
 help:
-	@echo 'make setup | demo | test | lint | experiments | replay BAG=<dir> | bench | clean'
+	@echo 'make setup | demo | demo-stream | test | lint | experiments | replay BAG=<dir> | bench | clean'
 
 setup:
 	@bash scripts/setup.sh
 
 demo: setup
 	@$(ENV) python scripts/demo.py
+
+demo-stream: setup
+	@$(ENV) python scripts/demo_stream.py
 
 test: setup
 	@$(ENV) ruff check . && ruff format --check . && python -m pytest tests

@@ -9,7 +9,9 @@ of ``window`` seconds of stamp time:
   and every detection the tracks hold in it is in a FINAL track (or committed unassigned)
   and has its ground truth; or ``truth_timeout`` seconds (wall time) after it was committed,
   with what is at hand (truth_complete false). Committed labels never change, so the
-  timeout only matters for the truth.
+  timeout only matters for the truth. The last window of a road that fell quiet (no tracks
+  for ``truth_timeout`` seconds, everything held committed: the association node flushed
+  it) is scored as it is, although ``committed_until`` never reaches its end.
 * Scores: the core's ``mlkm_core.metrics.score`` on the window's true detections (a true
   detection no track holds counts as unassigned, never correct); cumulatively the core's
   ``accuracy`` over every window scored so far, kept as the track x vehicle contingency
@@ -24,6 +26,7 @@ of ``window`` seconds of stamp time:
 from __future__ import annotations
 
 import math
+import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -116,11 +119,15 @@ class StreamScorer:
         self._published_total = 0
         self._revised_total = 0
         self.last_cumulative = math.nan  # cumulative accuracy at the last scored window
+        self._last_tracks = -math.inf  # wall time of the last stream tracks [s]
         self.events: Counter[str] = Counter()
 
     # --- inputs ---------------------------------------------------------------------------
-    def add_tracks(self, method: str, keys: list[Key], labels, status, committed_ns: int):
+    def add_tracks(
+        self, method: str, keys: list[Key], labels, status, committed_ns: int, now: float
+    ) -> None:
         self.method = method
+        self._last_tracks = now
         done = self.next_start
         for key, label, state in zip(keys, labels, status):
             if done is not None and key[2] < done:
@@ -152,7 +159,7 @@ class StreamScorer:
         out = []
         while self.next_start is not None:
             end = self.next_start + self.window_ns
-            if self.committed_until < end:
+            if self.committed_until < end and not self._quiet(now):
                 self._committed_at = None
                 break
             if self._committed_at is None:
@@ -166,6 +173,13 @@ class StreamScorer:
             self.next_start = end
             self._committed_at = None
         return out
+
+    def _quiet(self, now: float) -> bool:
+        """No tracks for ``truth_timeout`` and every detection held is committed."""
+        if now - self._last_tracks < self.truth_timeout:
+            return False
+        stamps = [k[2] for k in self.current]
+        return bool(stamps) and max(stamps) < self.committed_until
 
     def _empty(self, end: int) -> bool:
         """Skip windows without any detection (a quiet road): move to the next one that has
@@ -313,7 +327,12 @@ class StreamScoring:
             return True
         keys = list(zip(d.sensor_ids.tolist(), d.lanes.tolist(), d.stamps_ns.tolist()))
         self.scorer.add_tracks(
-            msg.method, keys, d.labels.tolist(), d.status.tolist(), d.committed_until_ns
+            msg.method,
+            keys,
+            d.labels.tolist(),
+            d.status.tolist(),
+            d.committed_until_ns,
+            time.monotonic(),
         )
         return True
 
