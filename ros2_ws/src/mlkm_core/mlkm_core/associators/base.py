@@ -12,6 +12,7 @@ equals feeding the segments one by one, and the tests check it for every method.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar
@@ -30,10 +31,20 @@ class AssociatorConfig:
     # multiframe: most candidate exchanges its local search scores per starting point (a
     # deterministic work budget; the search keeps the best labelling found within it)
     search_budget: int = 500_000
+    # an open road: positions [m] along the road where vehicles can enter (on-ramps) and leave
+    # (off-ramps) between sensors; a track that starts after an entry or ends before an exit
+    # is not charged for the sensors it could not pass (multiframe's likelihood)
+    entries: tuple[float, ...] = ()
+    exits: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.search_budget < 0:
             raise ValueError(f'search_budget must be >= 0, got {self.search_budget}')
+        for name in ('entries', 'exits'):
+            values = tuple(float(x) for x in getattr(self, name))
+            if not all(math.isfinite(x) for x in values):
+                raise ValueError(f'{name} must be finite positions along the road, got {values}')
+            object.__setattr__(self, name, values)
 
 
 class DegradedResultWarning(UserWarning):

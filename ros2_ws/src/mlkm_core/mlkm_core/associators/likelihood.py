@@ -139,7 +139,9 @@ def sequence_nll(
     here) pays the new-track cost and, if it has two detections or more, the miss cost of every
     sensor before its first detection (capped at ``max_skip + 1``: targets enter before the
     first sensor); one flagged ``end`` (the track ends here) with two detections or more pays
-    the miss cost of every sensor after its last one (capped at 10). A single detection is a
+    the miss cost of every sensor after its last one (capped at 10). On an open road
+    (``params.open_road``) only the sensors after the last entry upstream / before the first
+    exit downstream count. A single detection is a
     false alarm: the new-track cost only. ``rows`` optionally gives per-row motion parameters
     (see ``KalmanModel``). ``state`` continues rows from ``sequence_state``.
     """
@@ -151,9 +153,14 @@ def sequence_nll(
     n_s = layout.n_sensors
     several = count >= 2
     born = birth & several
-    out[born] += np.minimum(first_sensor[born], params.max_skip + 1) * params.miss_cost
     ended = end & several
-    out[ended] += np.minimum(n_s - 1 - last[ended], 10) * params.miss_cost
+    before, after = first_sensor[born], n_s - 1 - last[ended]
+    if params.open_road is not None:
+        opened, closed = params.open_road
+        before = before - opened[first_sensor[born]]
+        after = closed[last[ended]] - last[ended]
+    out[born] += np.minimum(before, params.max_skip + 1) * params.miss_cost
+    out[ended] += np.minimum(after, 10) * params.miss_cost
     return out
 
 

@@ -59,8 +59,32 @@ class MotionParams:
     # by N(0, jump_sigma^2) at a uniformly distributed point; 0 = pure OU model
     jump_rate: float = 0.0  # [1/m]
     jump_sigma: float = 4.0  # [m/s]
+    # open road, per sensor: the first sensor a track seen first there could have passed (after
+    # the last entry upstream) and the last one a track seen last there could pass (before the
+    # first exit downstream); None: a closed road (0 and n_sensors - 1)
+    open_road: tuple[np.ndarray, np.ndarray] | None = field(
+        default=None, compare=False, repr=False
+    )
     # lane and length evidence of the detections being associated (None: not used)
     attributes: Attributes | None = field(default=None, compare=False, repr=False)
+
+    @staticmethod
+    def road_openings(
+        positions: np.ndarray, entries: tuple[float, ...], exits: tuple[float, ...]
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``open_road`` for sensors at ``positions`` and entry / exit positions [m]."""
+        if not entries and not exits:
+            return None
+        n = positions.size
+        first = np.zeros(n, np.int64)
+        last = np.full(n, n - 1, np.int64)
+        for e in entries:
+            k = int(np.searchsorted(positions, e))  # first sensor downstream of the entry
+            first[k:] = np.maximum(first[k:], k)
+        for e in exits:
+            k = int(np.searchsorted(positions, e))  # sensors 0..k-1 are upstream of the exit
+            last[:k] = np.minimum(last[:k], k - 1)
+        return first, last
 
     @property
     def miss_cost(self) -> float:

@@ -102,6 +102,10 @@ class MultiFrameAssociator(Associator):
         if len(d) == 0:
             return out
         params = estimate_params(layout, d)
+        openings = MotionParams.road_openings(
+            layout.positions, self.config.entries, self.config.exits
+        )
+        params = replace(params, open_road=openings)
         budget = self.config.search_budget
         with np.errstate(all='ignore'):
             pairwise = link(layout, d, params, 'pairwise')
