@@ -207,6 +207,24 @@ def test_associators_gain_from_the_jumps(method, monkeypatch):
     assert with_jumps.correct > pure_ou.correct
 
 
+def test_extra_travel_time_of_a_gap_is_found_from_the_data():
+    # road works between sensors 5 and 6: every vehicle loses 15 s there, which the speeds
+    # measured at the sensors (outside the works) do not show
+    layout, cols = background(60, 8)
+    sensor = np.array(cols['sensor'])
+    stamp = np.array(cols['stamp'])
+    stamp[sensor >= 6] += 15.0
+    cols['stamp'] = stamp.tolist()
+    d = detections(cols, lane=False, length=False)
+    p = estimate_params(layout, d)
+    assert p.delay is not None
+    extra = np.diff(p.delay[1])
+    assert extra[5] == pytest.approx(15.0, abs=0.5)
+    assert np.all(np.abs(np.delete(extra, 5)) < 1e-9)
+    labels = make_associator('assignment').associate(layout, d, 60)
+    assert accuracy(labels, d.target).accuracy == 1.0
+
+
 @pytest.mark.parametrize('method', available_methods())
 def test_batch_equals_incremental_with_lane_and_length(method):
     layout, cols = background(25, 6, change_prob=0.05, length_noise=0.3)

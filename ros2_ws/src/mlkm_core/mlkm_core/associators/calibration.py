@@ -99,6 +99,7 @@ def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams
     if same.sum() >= 10:
         dx = (xs[1:] - xs[:-1])[same]
         e_t = (ts[1:] - ts[:-1])[same] - dx * (us[1:] + us[:-1])[same] / 2
+        e_t = e_t - p.extra_time(xs[:-1][same], xs[1:][same])
         u2 = (us[1:] * us[:-1])[same]
         known = dx * dx * (p.velocity_noise**2) * u2 * u2 / 2 + (p.sigma * u2) ** 2 * dx**3 / (
             6 * p.length
@@ -240,6 +241,70 @@ def _fit_jumps(
     return p
 
 
+#: a gap whose first-pass links join fewer than this fraction of its detections is searched
+#: for an extra travel time
+LINKED_FRACTION = 0.6
+#: bin [s] of the histogram of travel-time residuals in which the extra time is the mode
+DELAY_BIN = 1.0
+
+
+def gap_links(layout: Layout, d: Detections, labels: np.ndarray) -> np.ndarray:
+    """Links of ``labels`` across each gap between consecutive sensors."""
+    valid = np.flatnonzero(labels >= 0)
+    order = valid[np.lexsort((d.sensor_index[valid], labels[valid]))]
+    same = labels[order[1:]] == labels[order[:-1]]
+    a = order[:-1][same]
+    one = d.sensor_index[order[1:][same]] == d.sensor_index[a] + 1
+    return np.bincount(d.sensor_index[a[one]], minlength=layout.n_sensors)[:-1]
+
+
+def estimate_delay(
+    layout: Layout, d: Detections, labels: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Extra travel time of the gaps the first pass could not link (``MotionParams.delay``).
+
+    Where the speeds at both ends of a gap do not show a slowdown between them (road works, a
+    queue), the predicted travel times are short by about the same amount for every vehicle
+    and the gate breaks nearly every track there. For such a gap, the residuals of the
+    predicted travel time over all pairs of detections at its two ends pile up at the true
+    extra time (the right pairs) over a flat background (the wrong ones): their mode, refined
+    by the median of the residuals within two bins of it.
+    """
+    n_s = layout.n_sensors
+    if n_s < 2 or len(d) == 0:
+        return None
+    pos = layout.positions
+    links = gap_links(layout, d, labels)
+    count = np.bincount(d.sensor_index, minlength=n_s)
+    extra = np.zeros(n_s - 1)
+    u = 1.0 / d.velocity
+    for g in range(n_s - 1):
+        n = min(count[g], count[g + 1])
+        if n < 10 or links[g] >= LINKED_FRACTION * n:
+            continue
+        ia = np.flatnonzero(d.sensor_index == g)
+        ib = np.flatnonzero(d.sensor_index == g + 1)
+        dx = pos[g + 1] - pos[g]
+        r = (d.stamp[ib][None, :] - d.stamp[ia][:, None]) - dx * (
+            u[ia][:, None] + u[ib][None, :]
+        ) / 2
+        base = dx * np.median(u[ia])
+        r = r[(r > -0.5 * base) & (r < min(3 * base, 600.0))]
+        if r.size < 10:
+            continue
+        edges = np.arange(r.min(), r.max() + DELAY_BIN, DELAY_BIN)
+        if edges.size < 3:
+            continue
+        hist, _ = np.histogram(r, edges)
+        smooth = np.convolve(hist, np.ones(3), mode='same')
+        peak = edges[int(np.argmax(smooth))] + DELAY_BIN / 2
+        near = r[np.abs(r - peak) <= 2 * DELAY_BIN]
+        extra[g] = float(np.median(near))
+    if not np.any(extra):
+        return None
+    return pos.copy(), np.concatenate([[0.0], np.cumsum(extra)])
+
+
 def estimate_params(layout: Layout, d: Detections) -> MotionParams:
     """Self-calibration: pass 1 with generic parameters, then moments, then maximum likelihood.
 
@@ -252,6 +317,19 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
     if with_attributes:
         base = replace(base, attributes=Attributes(layout, d, AttributeParams()))
     raw = link(layout, d, base, 'pairwise')
+    delay = estimate_delay(layout, d, relabel(raw))
+    if delay is not None:
+        # keep the extra time only in gaps where it lets clearly more tracks through (a delay
+        # that changes with time, as in a growing queue, links no better)
+        before = gap_links(layout, d, relabel(raw))
+        trial = link(layout, d, replace(base, delay=delay), 'pairwise')
+        gain = gap_links(layout, d, relabel(trial)) > 1.2 * before + 2
+        extra = np.where(gain, np.diff(delay[1]), 0.0)
+        if np.all(gain[extra != 0]) and gain.any():
+            base, raw = replace(base, delay=delay), trial
+        elif gain.any():
+            base = replace(base, delay=(delay[0], np.concatenate([[0.0], np.cumsum(extra)])))
+            raw = link(layout, d, base, 'pairwise')
     p = calibrate(layout, d, raw, base)
     if with_attributes:
         ap = estimate_attributes(layout, d, relabel(raw))

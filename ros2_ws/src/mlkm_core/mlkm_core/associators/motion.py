@@ -65,6 +65,10 @@ class MotionParams:
     open_road: tuple[np.ndarray, np.ndarray] | None = field(
         default=None, compare=False, repr=False
     )
+    # extra travel time [s] of each gap between consecutive sensors that the speeds measured
+    # at its ends do not show (road works, a queue between two sensors): (sensor positions,
+    # cumulative extra time up to each sensor); None: none
+    delay: tuple[np.ndarray, np.ndarray] | None = field(default=None, compare=False, repr=False)
     # lane and length evidence of the detections being associated (None: not used)
     attributes: Attributes | None = field(default=None, compare=False, repr=False)
 
@@ -85,6 +89,15 @@ class MotionParams:
             k = int(np.searchsorted(positions, e))  # sensors 0..k-1 are upstream of the exit
             last[:k] = np.minimum(last[:k], k - 1)
         return first, last
+
+    def extra_time(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
+        """Extra travel time [s] from position x1 to x2 (``delay``; 0 without it)."""
+        if self.delay is None:
+            return 0.0
+        pos, cum = self.delay
+        k1 = np.searchsorted(pos, x1, side='right') - 1
+        k2 = np.searchsorted(pos, x2, side='right') - 1
+        return cum[np.clip(k2, 0, pos.size - 1)] - cum[np.clip(k1, 0, pos.size - 1)]
 
     @property
     def miss_cost(self) -> float:
@@ -227,7 +240,9 @@ class PairwiseModel(MotionModel):
         )
         if p.jump_rate > 0:
             var_t = var_t + (p.jump_sigma * u * u) ** 2 * dx * dx
-        return self.t[tracks] + dx * u, np.sqrt(p.gate * var_t)
+        return self.t[tracks] + dx * u + p.extra_time(self.x[tracks], pred.x), np.sqrt(
+            p.gate * var_t
+        )
 
     def cost(
         self, pred: Prediction, t: np.ndarray, u: np.ndarray
@@ -237,7 +252,7 @@ class PairwiseModel(MotionModel):
         u1 = self.u[tracks]
         su2 = (p.sigma * u1 * u) ** 2  # sigma_u^2 with m^2 ~ u1 u2
         vn1, vn2 = self._var_u_noise(u1), self._var_u_noise(u)
-        e_t = t - self.t[tracks] - dx * (u1 + u) / 2
+        e_t = t - self.t[tracks] - dx * (u1 + u) / 2 - p.extra_time(self.x[tracks], pred.x)
         var_t = (
             2 * max(p.stamp_noise, FLOOR_T) ** 2
             + dx * dx * (vn1 + vn2) / 4
@@ -331,6 +346,8 @@ class KalmanModel(MotionModel):
         mean = np.column_stack(
             [m[:, 0] + f01 * m[:, 1] + f02 * m[:, 2], f11 * m[:, 1] + f12 * m[:, 2], m[:, 2]]
         )
+        if self.p.delay is not None:
+            mean[:, 0] += self.p.extra_time(self.x[tracks], x)
         # F P F^T with F = [[1, f01, f02], [0, f11, f12], [0, 0, 1]], done by rows
         r0 = P[:, 0, :] + f01[:, None] * P[:, 1, :] + f02[:, None] * P[:, 2, :]
         r1 = f11[:, None] * P[:, 1, :] + f12[:, None] * P[:, 2, :]
