@@ -16,22 +16,22 @@ Mechanism
 2. **Revision in a window.** At every boundary B = k * ``solve_interval`` of stamp time, once
    the newest stamp is ``reorder_tolerance`` past B, the uncommitted detections stamped
    before B are re-solved together with *anchors*: the last ``anchor_depth`` committed
-   detections of every open track. ``assignment`` and ``multiframe`` run natively on that
-   window with the motion model calibrated on the stream's history (the last
-   ``calibration_size`` committed detections plus the window, every ``calibration_every``
-   solves): the sequential assignment, and for ``multiframe`` the Kalman and pairwise passes
-   each refined by the multi-frame local search, keeping the more likely result; so a link
-   is decided with evidence from the stations after it. Every other method (``mlkm``,
-   ``mlkm_no_ec``, ``kmeans_*``, ``mlkm_robust``) runs its own ``associate`` on the window
-   with the number of targets taken from the window (its largest per-station count). Before
-   anything is committed every method runs its own ``associate``, so a lag longer than the
-   input gives exactly the batch association.
+   detections of every open track. The configured method's own batch ``associate`` solves
+   that window (with lane and length where the sensors report them), so every registered
+   method works in stream mode: ``assignment`` and ``multiframe`` as fixed-lag trackers
+   (``multiframe`` with its Kalman pass and multi-frame local search inside the window, so a
+   link is decided with evidence from the stations after it), the paper's ``mlkm``,
+   ``mlkm_no_ec``, ``kmeans_*`` and ``mlkm_robust`` over the sliding window with the number of
+   clusters estimated from the window (its largest per-station count). Each method calibrates
+   its motion model on the window it is given; the anchors carry the open tracks' recent
+   history into it. With a lag longer than the input nothing is committed before ``flush``,
+   whose window is the whole input: the stream gives exactly the batch association.
 3. **Stitching onto stable ids.** The window's clusters are mapped back through the anchors:
-   walking a cluster in road order, a window detection joins the track of the last anchor met
-   before it (the track's most recent committed detection), if it lies downstream of that
-   track's detections so far; the rest of the cluster is a new group, which keeps the id of
-   the tentative track most of its detections were in (or gets a new id). Committed
-   detections never move.
+   a cluster holding the last committed detection of an open track continues that track (of
+   several such tracks, each takes the cluster's window detections from its own last
+   station on), except at a station where the track already has a committed detection;
+   the rest of a cluster is a new group, which keeps the id of the tentative track most of
+   its detections were in (or gets a new id). Committed detections never move.
 4. **Commit.** After the solve at B every detection stamped before B - ``lag`` is committed
    for good: to its track if the track holds another detection stamped before B, else as a
    false alarm (-1). ``committed_until`` = B - ``lag``; a detection pushed with an older
@@ -41,10 +41,12 @@ Mechanism
 5. **End of a track.** A track whose detections before B are all committed becomes FINAL at
    B when its latest detection is at the last station, or when B is past the gate of its
    passage at the next station (if an off-ramp lies before it: it left there) or at the
-   station 1 + ``max_skip`` further on (a missed detection does not end a track). A FINAL
-   track leaves the working set with its detections, so memory stays bounded on an endless
-   input. ``flush`` (the road fell quiet, or the input ended) solves and commits everything
-   and makes every track FINAL.
+   station 1 + ``max_skip`` further on (a missed detection does not end a track). The
+   pairwise model used for this and for the immediate link is calibrated every
+   ``calibration_every`` solves on the last ``calibration_size`` committed detections and
+   the window. A FINAL track leaves the working set with its detections, so memory stays
+   bounded on an endless input. ``flush`` (the road fell quiet, or the input ended) solves
+   and commits everything and makes every track FINAL.
 
 Status: TENTATIVE while a track holds fewer than ``confirm_count`` detections, CONFIRMED from
 then on (a revision that takes detections away can bring an uncommitted track back to
@@ -54,8 +56,8 @@ once as FINAL with no keys; track ids are never reused.
 Determinism. Every window solve, commit and end is a function of the detections stamped
 before its boundary and of the earlier commits, never of the immediate links or of when a
 push happened. So the committed association (which detections share a track, which are
-false alarms) is the same whenever every push arrives less than ``reorder_tolerance`` after
-a push with a stamp that much later: offline replay and the live node commit the same
+false alarms) is the same as long as no detection is pushed after one stamped
+``reorder_tolerance`` or more later than it: offline replay and the live node commit the same
 association. Track ids are numbered in arrival order, so they are the same when the arrival
 order is. A push older than the last solved boundary but not late (a delay beyond the
 tolerance) is still associated and counted as ``reordered``. A ``flush`` in the middle of a

@@ -9,55 +9,19 @@ from collections.abc import Sequence
 import numpy as np
 
 from mlkm_core.associators import make_associator
-from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.associators.motion import MotionParams
+from mlkm_core.streaming.book import COUNTERS, Det, TrackBook, as_detections, canon
 from mlkm_core.streaming.config import (
-    CONFIRMED,
-    FINAL,
-    TENTATIVE,
     StreamConfig,
     StreamUpdate,
-    TrackUpdate,
 )
+from mlkm_core.streaming.motion import calibrate_on, link_weights, overdue_at
 from mlkm_core.streaming.window import owners, solve_window
-from mlkm_core.types import UNKNOWN_LANE, Detections, Layout
+from mlkm_core.types import UNKNOWN_LANE, Layout
+
 
 #: the counters of ``StreamTracker.stats``
-COUNTERS = (
-    'pushed',
-    'linked',
-    'started',
-    'late',
-    'reordered',
-    'rejected',
-    'solves',
-    'degraded',
-    'committed',
-    'assigned',
-    'false_alarms',
-    'revised',
-    'final_tracks',
-)
-#: fewest detections the motion model is calibrated on (below, the last estimate is kept)
-MIN_CALIBRATION = 20
-
-
-class _Det:
-    __slots__ = ('key', 'sensor', 'stamp', 'velocity', 'lane', 'length', 'track', 'first', 'born')
-
-    def __init__(self, key, sensor, stamp, velocity, lane, length) -> None:
-        self.key, self.sensor, self.stamp, self.velocity = key, sensor, stamp, velocity
-        self.lane, self.length = lane, length
-        self.track = -1  # current track id (tentative or committed)
-        self.first = -1  # track id first published
-        self.born = False  # the push started a new track
-
-
-def _canon(d: _Det) -> tuple[int, float, float, int]:
-    return d.sensor, d.stamp, d.velocity, d.key
-
-
-class StreamTracker:
+class StreamTracker(TrackBook):
     """Associates an endless stream of detections into tracks with a fixed commit lag."""
 
     def __init__(
@@ -67,6 +31,7 @@ class StreamTracker:
         entries: Sequence[float] = (),
         exits: Sequence[float] = (),
     ) -> None:
+        super().__init__(layout.n_sensors, config.confirm_count)
         self.layout = layout
         self.config = config
         self._associator = make_associator(config.method, config.associator_config())
@@ -90,23 +55,13 @@ class StreamTracker:
             s = int(np.searchsorted(pos, float(x))) - 1
             if s >= 0:
                 self._before_exit[s] = True
-        self._dets: dict[int, _Det] = {}
-        self._tracks: dict[int, set[int]] = {}  # id -> keys of its detections
-        self._n_committed: dict[int, int] = {}
-        self._pending: set[int] = set()
-        self._tails: list[set[int]] = [set() for _ in range(n_s)]
-        self._tail_of: dict[int, int] = {}  # track -> key of its most downstream detection
         self._history: deque = deque(maxlen=config.calibration_size)
         self._params = MotionParams()
         self._calibrated_at: int | None = None
-        self._ever_committed = False
         self._next_k: int | None = None
         self._solved = False
         self._newest = -math.inf
-        self._committed_until = -math.inf
-        self._next_id = 0
         self._stats: Counter = Counter()
-        self._begin()
 
     # ----------------------------------------------------------------- public surface
     @property
@@ -158,7 +113,7 @@ class StreamTracker:
             self._next_k = first_k if self._next_k is None else min(self._next_k, first_k)
         self._newest = max(self._newest, stamp)
         self._advance()
-        d = _Det(key, sensor_index, stamp, velocity, int(lane), float(length))
+        d = Det(key, sensor_index, stamp, velocity, int(lane), float(length))
         self._dets[key] = d
         self._pending.add(key)
         tid = self._link_now(d)
@@ -209,79 +164,8 @@ class StreamTracker:
             raise ValueError(f'detection refused: {problem}')
         return key, sensor_index, stamp, velocity
 
-    # ----------------------------------------------------------------- bookkeeping
-    def _begin(self) -> None:
-        self._changed: set[int] = set()
-        self._gone: dict[int, np.ndarray] = {}
-        self._unassigned: list[int] = []
-        self._committed: list[tuple[int, int]] = []
-
-    def _end(self) -> StreamUpdate:
-        tracks = [TrackUpdate(t, FINAL, keys) for t, keys in sorted(self._gone.items())]
-        for t in sorted(self._changed - set(self._gone)):
-            if t in self._tracks:
-                tracks.append(TrackUpdate(t, self._status(t), self._keys(t)))
-        return StreamUpdate(
-            tracks,
-            np.array(self._unassigned, np.int64),
-            self._committed_until,
-            np.array(self._committed, np.int64).reshape(-1, 2),
-        )
-
-    def _status(self, tid: int) -> int:
-        return CONFIRMED if len(self._tracks[tid]) >= self.config.confirm_count else TENTATIVE
-
-    def _keys(self, tid: int) -> np.ndarray:
-        dets = sorted((self._dets[k] for k in self._tracks[tid]), key=lambda d: (d.stamp, d.key))
-        return np.array([d.key for d in dets], np.int64)
-
-    def _new_track(self) -> int:
-        tid = self._next_id
-        self._next_id += 1
-        self._tracks[tid] = set()
-        self._n_committed[tid] = 0
-        return tid
-
-    def _drop_track(self, tid: int, keys: np.ndarray) -> None:
-        self._tracks.pop(tid)
-        self._n_committed.pop(tid)
-        self._untail(tid)
-        self._gone[tid] = keys
-        self._changed.discard(tid)
-
-    def _move(self, d: _Det, tid: int) -> None:
-        """Put ``d`` into track ``tid`` (-1: out of every track)."""
-        old = d.track
-        if old == tid:
-            return
-        if old >= 0:
-            self._tracks[old].discard(d.key)
-            self._changed.add(old)
-        d.track = tid
-        if tid >= 0:
-            self._tracks[tid].add(d.key)
-            self._changed.add(tid)
-
-    def _untail(self, tid: int) -> None:
-        tail = self._tail_of.pop(tid, None)
-        if tail is not None:
-            self._tails[tail[1]].discard(tid)
-
-    def _retail(self, tid: int) -> None:
-        """Recompute the most downstream detection of ``tid`` (drops the track when empty)."""
-        self._untail(tid)
-        members = self._tracks.get(tid)
-        if members is None:
-            return
-        if not members:
-            self._drop_track(tid, np.zeros(0, np.int64))
-            return
-        tail = max((self._dets[k] for k in members), key=lambda d: (d.sensor, d.stamp))
-        self._tail_of[tid] = (tail.key, tail.sensor)
-        self._tails[tail.sensor].add(tid)
-
     # ----------------------------------------------------------------- immediate link
-    def _link_now(self, d: _Det) -> int:
+    def _link_now(self, d: Det) -> int:
         """Best open track for ``d`` by the gated pairwise prediction from its latest
         detection (1 + max_skip stations upstream at most), or -1 for a new track."""
         p = self._params
@@ -294,23 +178,13 @@ class StreamTracker:
         cands = [(tid, t) for tid, t in cands if t.stamp < d.stamp]
         if not cands:
             return -1
-        n = len(cands)
-        ids = np.arange(n)
-        sensors = np.array([t.sensor for _, t in cands])
-        model = PairwiseModel(p)
-        model.grow(n)
-        model.start(
-            ids,
-            self.layout.positions[sensors],
-            np.array([t.stamp for _, t in cands]),
-            1.0 / np.array([t.velocity for _, t in cands]),
+        tails = (
+            [t.sensor for _, t in cands],
+            [t.stamp for _, t in cands],
+            [t.velocity for _, t in cands],
         )
-        pred = model.predict(ids, float(self.layout.positions[s]))
-        with np.errstate(all='ignore'):
-            nll, d2 = model.cost(pred, np.full(n, d.stamp), np.full(n, 1.0 / d.velocity))
         birth = p.miss_cost if self._after_entry[s] else p.new_cost
-        w = nll + (s - 1 - sensors) * p.miss_cost - p.miss_cost - birth
-        w = np.where((d2 <= p.gate) & np.isfinite(w), w, np.inf)
+        w = link_weights(p, self.layout, tails, s, d.stamp, d.velocity, birth)
         best = int(np.argmin(w))
         return int(cands[best][0]) if w[best] < 0 else -1
 
@@ -331,7 +205,7 @@ class StreamTracker:
             self._solve(self._next_k)
             self._next_k += 1
 
-    def _anchors(self) -> list[tuple[_Det, int, bool]]:
+    def _anchors(self) -> list[tuple[Det, int, bool]]:
         """(detection, track, is the track's last) of each open track's last committed ones."""
         out = []
         depth = self.config.anchor_depth
@@ -354,23 +228,19 @@ class StreamTracker:
         cutoff = math.inf if final else bound - c.lag
         window = sorted(
             (self._dets[key] for key in self._pending if self._dets[key].stamp < bound),
-            key=_canon,
+            key=canon,
         )
         self._solved = True
         if window:
             self._stats['solves'] += 1
-            anchors = sorted(self._anchors(), key=lambda a: _canon(a[0]))
+            anchors = sorted(self._anchors(), key=lambda a: canon(a[0]))
             rows = [a[0] for a in anchors] + window
-            dets = Detections(
-                np.array([d.sensor for d in rows], np.int64),
-                np.array([d.stamp for d in rows]),
-                np.array([d.velocity for d in rows]),
-            )
+            dets = as_detections(rows)
             if not final:
                 self._calibrate(k, window)
-            params = self._params if self._ever_committed else None
-            labels, degraded = solve_window(self._associator, self.layout, dets, params)
+            labels, degraded, failed = solve_window(self._associator, self.layout, dets)
             self._stats['degraded'] += degraded
+            self._stats['failed_solves'] += failed
             n_a = len(anchors)
             anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)
             last = np.array([a[2] for a in anchors] + [False] * len(window), bool)
@@ -384,7 +254,7 @@ class StreamTracker:
         self._committed_until = max(self._committed_until, cutoff)
         self._finalize(bound, final)
 
-    def _apply(self, window: list[_Det], own: np.ndarray, groups: list[np.ndarray]) -> None:
+    def _apply(self, window: list[Det], own: np.ndarray, groups: list[np.ndarray]) -> None:
         """Move the window's detections to the tracks of the solve."""
         target = {d.key: int(t) for d, t in zip(window, own, strict=True) if t >= 0}
         claimed = set(target.values())
@@ -412,7 +282,7 @@ class StreamTracker:
         for tid in touched:
             self._retail(tid)
 
-    def _commit(self, due: list[_Det], bound: float) -> None:
+    def _commit(self, due: list[Det], bound: float) -> None:
         """Commit ``due`` (canonical order): a detection whose track has another detection
         below the boundary keeps it for good, one alone is a false alarm (-1)."""
         touched = set()
@@ -440,29 +310,15 @@ class StreamTracker:
                 self._stats['revised'] += 1
             self._committed.append((d.key, label))
             self._history.append((d.sensor, d.stamp, d.velocity))
-            self._ever_committed = True
         for tid in touched:
             self._retail(tid)
 
-    def _due(self, tail: _Det) -> float:
+    def _due(self, tail: Det) -> float:
         """Stamp after which a track ending at ``tail`` is over: its passage at the next
         station (before an off-ramp) or 1 + max_skip stations on is beyond the gate."""
-        p = self._params
-        span = 1 if self._before_exit[tail.sensor] else 1 + p.max_skip
+        span = 1 if self._before_exit[tail.sensor] else 1 + self._params.max_skip
         to = min(tail.sensor + span, self.layout.n_sensors - 1)
-        model = PairwiseModel(p)
-        model.grow(1)
-        ids = np.zeros(1, np.int64)
-        model.start(
-            ids,
-            self.layout.positions[tail.sensor],
-            np.array([tail.stamp]),
-            np.array([1.0 / tail.velocity]),
-        )
-        with np.errstate(all='ignore'):
-            centre, half = model.gate_window(model.predict(ids, float(self.layout.positions[to])))
-        due = float(centre[0] + half[0])
-        return due if math.isfinite(due) else tail.stamp
+        return overdue_at(self._params, self.layout, tail.sensor, tail.stamp, tail.velocity, to)
 
     def _finalize(self, bound: float, everything: bool) -> None:
         """FINAL: a track whose detections below the boundary are all committed and that
@@ -493,17 +349,13 @@ class StreamTracker:
                 del self._dets[d.key]
             self._stats['final_tracks'] += 1
 
-    def _calibrate(self, k: int, window: list[_Det]) -> None:
+    def _calibrate(self, k: int, window: list[Det]) -> None:
         """Re-estimate the motion model on the history and the window, every
         ``calibration_every`` solves (a function of the data and the boundaries only)."""
         c = self.config
         if self._calibrated_at is not None and k - self._calibrated_at < c.calibration_every:
             return
         rows = list(self._history) + [(d.sensor, d.stamp, d.velocity) for d in window]
-        if len(rows) < MIN_CALIBRATION:
-            return
-        arr = np.array(rows)
-        self._params = estimate_params(
-            self.layout, Detections(arr[:, 0].astype(np.int64), arr[:, 1], arr[:, 2])
-        )
-        self._calibrated_at = k
+        params = calibrate_on(self.layout, rows)
+        if params is not None:
+            self._params, self._calibrated_at = params, k
