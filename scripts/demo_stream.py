@@ -124,6 +124,20 @@ def all_scored(collector: ScoreCollector) -> bool:
     )
 
 
+def scoring_state(collector: ScoreCollector) -> str:
+    """What the stream nodes last reported, for a message when the scoring did not finish."""
+    assoc = latest_values(collector, '/association_node')
+    scorer = latest_values(collector, '/scorer_node')
+    keys = ('stream.pushed', 'stream.working_set', 'stream.detections_held', 'mode')
+    keys2 = ('stream_tracked_detections', 'stream_buffered_truth', 'stream_windows_published')
+    return (
+        'association_node '
+        + ', '.join(f'{k}={assoc.get(k)}' for k in keys)
+        + '; scorer_node '
+        + ', '.join(f'{k}={scorer.get(k)}' for k in keys2)
+    )
+
+
 def format_stream_scores(scores: dict, title: str) -> str:
     """One line per window and the rolling (cumulative) figures."""
     lines = [
@@ -239,7 +253,9 @@ def main(argv: list[str] | None = None) -> int:
                 abort=graph.failed,
             )
             if why:
-                raise RuntimeError(f'the stream was not scored to the end: {why}')
+                raise RuntimeError(
+                    f'the stream was not scored to the end: {why} ({scoring_state(collector)})'
+                )
             collector.spin_until(lambda: False, timeout=0.5)  # the last scores
             if not graph.procs['bag_recorder'].wait_idle(timeout=60.0):
                 print('demo-stream: the recorder stayed busy; stopping it anyway')

@@ -7,11 +7,15 @@ scores or diagnostics) with ``rosbag_mcap bag_player`` into a new ``association_
 $ROS_DOMAIN_ID), and prints the accuracy of each episode and the mean. When the bag also
 holds the scores of the run that recorded it, they are compared: a replay reproduces them.
 
+A bag of an open road (no EpisodeInfo in it, e.g. from ``make demo-stream``) is replayed into
+nodes in stream mode: the script prints the score of every window with the rolling accuracy
+and revision rate, and compares them with the recorded window scores.
+
 A damaged bag (truncated file, corrupt chunks) is replayed as far as it is readable, with a
 warning naming the damage; its accuracy is not compared with the recorded run (messages are
 missing) and the exit status is 3.
 
-Usage: python scripts/replay.py <bag dir or .mcap> [--method M] [--rate R]
+Usage: python scripts/replay.py <bag dir or .mcap> [--method M] [--rate R] [--lag S]
 Exit status: 0 replayed; 1 failed (unreadable bag, no complete episode, a node failed or
 timed out); 2 bad arguments; 3 the bag is damaged: only its readable part was replayed.
 """
@@ -19,6 +23,7 @@ timed out); 2 bad arguments; 3 the bag is damaged: only its readable part was re
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tempfile
 import time
@@ -35,6 +40,13 @@ PLAY_REGEX = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detectio
 def recorded_episodes(bag: Path) -> tuple[int, dict[int, float], list[str]]:
     """(number of ENDED episodes, {episode: recorded accuracy}, damage found) read from the
     bag; the damage list is empty for an intact bag."""
+    ended, _, recorded, damage = inspect_bag(bag)
+    return ended, {k: s.accuracy for k, s in recorded.items()}, damage
+
+
+def inspect_bag(bag: Path) -> tuple[int, int, dict, list[str]]:
+    """(ENDED episodes, EpisodeInfo messages, {episode or window: recorded AssociationScore},
+    damage found) read from the bag; the damage list is empty for an intact bag."""
     from rclpy.serialization import deserialize_message
 
     from road_sensor_msgs.msg import EpisodeInfo
@@ -42,16 +54,18 @@ def recorded_episodes(bag: Path) -> tuple[int, dict[int, float], list[str]]:
 
     reader = BagReader(bag)
     ended: set[int] = set()
-    recorded: dict[int, float] = {}
+    infos = 0
+    recorded: dict = {}
     for message in reader.messages(topics=['/road/episode', '/mlkm/score']):
         if message.topic == '/road/episode':
+            infos += 1
             info = deserialize_message(message.data, EpisodeInfo)
             if info.status == EpisodeInfo.STATUS_ENDED:
                 ended.add(info.episode_id)
         elif message.topic == '/mlkm/score':
             score = _recorded_score(message.data)
-            recorded[score.episode_id] = score.accuracy
-    return len(ended), recorded, bag_damage(reader)
+            recorded[score.episode_id] = score
+    return len(ended), infos, recorded, bag_damage(reader)
 
 
 def bag_damage(reader) -> list[str]:
@@ -79,16 +93,22 @@ def main(argv: list[str] | None = None) -> int:
         help='playback rate; 0 = as fast as the nodes take it (default)',
     )
     p.add_argument('--timeout', type=float, default=120.0, help='give up after [s] (120)')
+    p.add_argument(
+        '--lag', type=float, default=15.0, help='stream bags: commit lag [s] (15, as the demo)'
+    )
     args = p.parse_args(argv)
     bag = args.bag.resolve()
     if not bag.exists():
         print(f'replay: {bag} does not exist', file=sys.stderr)
         return 2
     try:
-        episodes, recorded, damage = recorded_episodes(bag)
+        episodes, infos, scores, damage = inspect_bag(bag)
     except Exception as exc:  # noqa: BLE001 - any unreadable bag: say why and stop
         print(f'replay: cannot read {bag}: {exc}', file=sys.stderr)
         return 1
+    if infos == 0:
+        return replay_stream(bag, args, scores, damage)
+    recorded = {k: s.accuracy for k, s in scores.items()}
     if episodes == 0:
         print(
             f'replay: {bag} holds no complete episode (no ENDED on /road/episode)', file=sys.stderr
@@ -177,6 +197,105 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: list[str]) -> int:
+    """A bag of an open road: nodes in stream mode, scores per window."""
+    from demo_stream import all_scored, format_stream_scores, scoring_state, start_stream_graph
+
+    recorded = {k: s for k, s in scores.items() if s.mode == s.MODE_STREAM}
+    method = args.method or next((s.method for s in recorded.values()), 'multiframe')
+    window = 60.0
+    for s in recorded.values():
+        length = _seconds(s.window_end) - _seconds(s.window_start)
+        window = length if length > 0 else window
+        break
+    if damage:
+        print(
+            f'replay: WARNING: {bag} is damaged; replaying only its readable part:\n  '
+            + '\n  '.join(damage),
+            file=sys.stderr,
+        )
+    log_dir = Path(tempfile.mkdtemp(prefix='mlkm_replay_'))
+    t0 = time.monotonic()
+    with domain() as domain_id:
+        print(
+            f'replay: {bag} (a stream: no EpisodeInfo), method {method}, lag {args.lag:g} s, '
+            f'window {window:g} s, ROS_DOMAIN_ID={domain_id}; logs in {log_dir}'
+        )
+        collector = ScoreCollector(domain_id, diagnostics=True)
+        graph = Graph(domain_id, log_dir)
+        try:
+            start_stream_graph(graph, collector, method, args.lag, window)
+            graph.start('bag_player', 'rosbag_mcap', 'bag_player', *_player_args(bag, args))
+            why = collector.spin_until(
+                lambda: (
+                    'playback done' in graph.procs['bag_player'].output() and all_scored(collector)
+                ),
+                timeout=args.timeout + args.lag,
+                abort=lambda: graph.failed(ignore=('bag_player',)) or _player_failed(graph),
+            )
+            if why:
+                raise RuntimeError(
+                    f'the stream was not scored to the end: {why} ({scoring_state(collector)})'
+                )
+            collector.spin_until(lambda: False, timeout=0.5)
+        except (RuntimeError, KeyboardInterrupt) as exc:
+            graph.stop_all()
+            collector.close()
+            print(f'replay: FAILED: {exc}', file=sys.stderr)
+            for proc in graph.procs.values():
+                tail = '\n    '.join(proc.output().splitlines()[-8:])
+                print(f'--- {proc.name} (exit {proc.poll()}):\n    {tail}', file=sys.stderr)
+            return 1
+        codes = graph.stop_all()
+        collector.close()
+    print(format_stream_scores(collector.scores, f'\nreplayed stream association ({method}):'))
+    if damage:
+        print('recorded run: not compared, the bag is damaged (messages are missing)')
+        print(f'replay: done in {time.monotonic() - t0:.1f} s with a DAMAGED bag; {codes}')
+        return EXIT_DAMAGED
+    if recorded:
+        same = set(recorded) == set(collector.scores) and all(
+            _same(collector.scores[k].accuracy, s.accuracy)
+            and collector.scores[k].links_revised == s.links_revised
+            for k, s in recorded.items()
+        )
+        print(
+            'recorded run: '
+            + (
+                'same accuracy and revisions per window'
+                if same
+                else 'DIFFERENT: recorded '
+                + ', '.join(f'{k}: {s.accuracy:.4f}' for k, s in sorted(recorded.items()))
+            )
+        )
+    print(f'replay: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
+    return 0
+
+
+def _player_args(bag: Path, args: argparse.Namespace) -> list[str]:
+    return [
+        '--ros-args',
+        '-p',
+        f'bag:={bag}',
+        '-p',
+        f'rate:={args.rate}',
+        '-p',
+        f'include_regex:={PLAY_REGEX}',
+        '-p',
+        'wait_for_subscribers:=1',
+        '-p',
+        'linger:=-1.0',
+    ]
+
+
+def _seconds(t) -> float:
+    return t.sec + t.nanosec / 1e9
+
+
+def _same(a: float, b: float) -> bool:
+    return (math.isnan(a) and math.isnan(b)) or abs(a - b) < 1e-12
+
+
 def _player_failed(graph: Graph) -> str | None:
     code = graph.procs['bag_player'].poll()
     if code not in (None, 0):
@@ -205,7 +324,7 @@ def _recorded_score(data: bytes):
     try:
         return deserialize_message(data, AssociationScore)
     except Exception:  # noqa: BLE001 - rclpy raises a generic RMWError on short data
-        return deserialize_message(bytes(data) + bytes(32), AssociationScore)
+        return deserialize_message(bytes(data) + bytes(96), AssociationScore)
 
 
 if __name__ == '__main__':

@@ -25,6 +25,8 @@ from mlkm_ros import qos
 from road_sensor_msgs.msg import Detection, SensorLayout
 
 MODES = ('auto', 'episodes', 'stream')
+#: Period of the clock ticks stream mode's reorder buffer runs on while nothing arrives [s].
+CLOCK_PERIOD = 0.02
 EPISODES, STREAM = 'episodes', 'stream'
 
 
@@ -132,6 +134,8 @@ class ModeSwitch:
         self.stream = StreamMode(
             settings, cfg.bounds(), publish, log, on_reject=self._node._on_reject
         )
+        stream = self.stream
+        self._clock = self._node.create_timer(CLOCK_PERIOD, lambda: stream.clock(time.monotonic()))
         if self._layout is not None:
             self.stream.set_layout(*self._layout)
 

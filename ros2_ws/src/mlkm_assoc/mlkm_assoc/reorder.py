@@ -14,8 +14,13 @@ buffer holds a detection while some sensor is still draining older ones (ROS-fre
 * the oldest held detection is released when no sensor blocks it, or after ``max_hold``
   seconds whatever happens.
 
+Times are the receiving node's clock (arrival times, and its ticks while nothing arrives),
+never the clock of whoever reads the buffer: a reader that fell behind, or a node whose
+executor stalled, does not make a busy topic look quiet.
+
 At real time every topic is caught up, no sensor lags by ``margin``, and a detection passes
-at once; reordering smaller than ``margin`` is left to the tracker's own tolerance.
+at once (a source faster than real time may see detections held up to ``wait``);
+reordering smaller than ``margin`` is left to the tracker's own tolerance (1 s).
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from typing import Any
 
 class ReorderBuffer:
     def __init__(
-        self, n_sensors: int, margin: float = 0.5, wait: float = 0.1, max_hold: float = 1.0
+        self, n_sensors: int, margin: float = 0.5, wait: float = 0.05, max_hold: float = 1.0
     ) -> None:
         self.margin = margin  # [s] stamp time
         self.wait = wait  # [s] wall time
@@ -69,16 +74,6 @@ class ReorderBuffer:
             heapq.heappop(heap)
             out.append(item)
         return out
-
-    def next_check(self, now: float) -> float | None:
-        """Wall time [s] from ``now`` after which ``release`` may free more; None: empty."""
-        if not self._heap:
-            return None
-        soonest = self._heap[0][2] + self.max_hold
-        for rx in self._last_rx:
-            if now - rx < self.wait:
-                soonest = min(soonest, rx + self.wait)
-        return max(soonest - now, 0.0)
 
     def drain(self) -> list[Any]:
         """Everything held, in stamp order (the road went quiet, or a new road)."""

@@ -222,6 +222,11 @@ class StreamMode:
     def add(self, *args) -> None:
         self.ingest.add(*args)
 
+    def clock(self, now: float) -> None:
+        """The node's clock for the reorder buffer while no detection arrives (called by a
+        fast timer of the node's executor: a stalled executor stops it too)."""
+        self._process.put(('tick', now))
+
     def tick(self, now: float) -> None:
         """Flush a road that has been quiet for ``lag`` seconds of wall time."""
         last = self.ingest.last_rx

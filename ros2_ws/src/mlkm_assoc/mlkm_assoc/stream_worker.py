@@ -47,7 +47,8 @@ class TrackerSettings:
 
 #: A queued detection: ('det', key, sensor index, sensor id, stamp ns, velocity, position,
 #: lane, length, monotonic arrival time). Other items: ('layout', Layout, entries, exits),
-#: ('flush', monotonic time) and None (stop).
+#: ('flush', monotonic time), ('tick', monotonic time: the node's clock while nothing
+#: arrives) and None (stop).
 Item = tuple
 
 
@@ -94,6 +95,7 @@ class TrackerState:
         self.newest = -math.inf
         self.committed_until = -math.inf
         self._reorder: ReorderBuffer | None = None
+        self.node_now = -math.inf  # the node's clock as far as its items tell [s]
 
     # --- inputs ---------------------------------------------------------------------------
     def set_layout(self, layout: Layout, entries, exits) -> Answer | None:
@@ -111,17 +113,18 @@ class TrackerState:
 
     def hold(self, item: Item) -> None:
         """A detection into the reorder buffer (see :mod:`mlkm_assoc.reorder`)."""
+        self.node_now = max(self.node_now, item[9])
         self._reorder.add(item, item[2], item[4] / NS_PER_S, item[9])
 
-    def next_check(self) -> float | None:
-        """Seconds until the reorder buffer may release more; None when it is empty."""
-        return None if self._reorder is None else self._reorder.next_check(time.monotonic())
+    def tick(self, now: float) -> None:
+        self.node_now = max(self.node_now, now)
 
     def release(self, drain: bool = False) -> Answer | None:
-        """Push what the reorder buffer releases (everything with ``drain``)."""
+        """Push what the reorder buffer releases by the node's clock (everything with
+        ``drain``)."""
         if self._reorder is None:
             return None
-        ready = self._reorder.drain() if drain else self._reorder.release(time.monotonic())
+        ready = self._reorder.drain() if drain else self._reorder.release(self.node_now)
         return self.push_batch(ready) if ready else None
 
     def push_batch(self, items: list[Item]) -> Answer:
@@ -371,15 +374,14 @@ def _serve(items, answers, parent: int, settings: TrackerSettings) -> None:
         threadpool_limits(1)
     except ImportError:
         pass
+    _warm_up(settings)
     state = TrackerState(settings, encode_tracks)
     while True:
-        wait = state.next_check()
         try:
-            item = items.get(timeout=1.0 if wait is None else max(wait, 1e-3))
+            item = items.get(timeout=1.0)
         except _queue.Empty:
             if os.getppid() != parent:
                 return
-            _send(answers, state.release())
             continue
         for _ in range(MAX_BATCH):
             if item is None:
@@ -389,6 +391,8 @@ def _serve(items, answers, parent: int, settings: TrackerSettings) -> None:
                 return
             if item[0] == 'det':
                 state.hold(item)
+            elif item[0] == 'tick':
+                state.tick(item[1])
             else:
                 _send(answers, state.release(drain=True))
                 if item[0] == 'layout':
@@ -400,6 +404,19 @@ def _serve(items, answers, parent: int, settings: TrackerSettings) -> None:
             except _queue.Empty:
                 break
         _send(answers, state.release())
+
+
+def _warm_up(settings: TrackerSettings) -> None:
+    """Pay the first-call costs (imports, the associator, message type support) before the
+    first detection arrives, so that its latency does not carry them."""
+    try:
+        state = TrackerState(settings, encode_tracks)
+        state.set_layout(Layout(10.0, np.array([2.0, 4.0, 6.0])), (), ())
+        for k in range(3):
+            state.push_batch([('det', k, k, k, (1 + k) * NS_PER_S, 5.0, 2.0 + 2 * k, -1, 0.0, 0)])
+        state.flush(0.0)
+    except Exception:  # noqa: BLE001 - only a warm-up; real errors show on real input
+        pass
 
 
 def _send(answers, answer: Answer | None) -> None:
