@@ -28,6 +28,8 @@ Parameters: the variances of the pairwise cost are estimated from the data exact
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mlkm_core.associators.base import Associator, canonical_order, register
@@ -63,7 +65,11 @@ def _pair_weights(
     if np.all(x2 >= x1):
         m.start(np.arange(n1), x1, t1, u1)
         nll, d2 = m.cost(m.predict(r, x2), t2[c], u2[c])
-    else:  # backward: mirror the road (time and position change sign)
+    else:  # backward: mirror the road (time and position change sign), extra times too
+        if p.delay is not None:
+            pos, cum = p.delay
+            m = PairwiseModel(replace(p, delay=(-pos[::-1], cum[-1] - cum[::-1])))
+            m.grow(n1)
         m.start(np.arange(n1), -x1, -t1, u1)
         nll, d2 = m.cost(m.predict(r, -x2), -t2[c], u2[c])
     extra = 0.0 if skipped is None else skipped[r] * p.miss_cost
