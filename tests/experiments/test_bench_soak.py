@@ -50,7 +50,7 @@ def test_report_of_a_finished_soak(tmp_path):
         'samples': samples,
         'status': 'ok',
     }
-    out['scenario']['method'] = 'mlkm'
+    out['scenario'].update(method='mlkm', real_time_factor=250.0)
     out.update(seconds=5.0, sample_period_s=0.25, growth_limit=0.1)
 
     class Score:
@@ -74,3 +74,44 @@ def test_report_of_a_finished_soak(tmp_path):
         1000,
     )
     assert not out['nothing_lost'] and not out['passed']
+
+
+def test_report_only_rewrites_the_readme_from_the_json_files(tmp_path, monkeypatch):
+    import json
+
+    from mlkm_experiments import bench
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError('--report-only ran a part')
+
+    monkeypatch.setattr(soak, 'run_soak', must_not_run)
+    samples = [
+        {'t': k, 'episodes': k, 'association_node': 100 * MIB, 'scorer_node': (90 + k) * MIB}
+        for k in range(21)
+    ]
+    data = {
+        'scenario': {'episodes': 20, 'targets': 10, 'sensors': 5, 'detections': 1000},
+        'samples': samples,
+        'status': 'ok',
+        'seconds': 21.0,
+        'sample_period_s': 0.25,
+        'growth_limit': 0.1,
+        'wall_s': 30.0,
+        'date': '2026-01-01 00:00 UTC',
+    }
+    data['scenario'].update(method='mlkm', real_time_factor=250.0)
+
+    class Score:
+        total, truth_complete, accuracy = 50, True, 1.0
+
+    soak._evaluate(data, {e: Score() for e in range(20)}, {}, 1000)
+    (tmp_path / 'soak.json').write_text(json.dumps(data))
+    assert bench.main(['--report-only', '--out', str(tmp_path)]) == 0
+    readme = (tmp_path / 'README.md').read_text()
+    assert 'soak 0.5 min (2026-01-01 00:00 UTC)' in readme
+    # scorer: median of 92, 93 MiB (episodes 2-3 of 20) vs of 108..110 MiB (18-20): +17.8 %
+    assert '| scorer_node | 92.5 | 109.0 | +17.8 % | **no** |' in readme
+    summary = json.loads((tmp_path / 'summary.json').read_text())
+    soak_targets = {t['target']: t['met'] for t in summary['targets'] if 'soak' in t['target']}
+    assert list(soak_targets.values()) == [False, False]  # RSS grew; received count unknown
+    assert (tmp_path / 'soak.png').exists()

@@ -41,6 +41,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     ap.add_argument('--methods', help='comma-separated subset of methods (default: all)')
     ap.add_argument(
+        '--report-only',
+        action='store_true',
+        help='run nothing: rewrite README.md, summary.json and the plots from the JSON files',
+    )
+    ap.add_argument(
         '--cache-dir',
         type=Path,
         help='keep the generated SUMO datasets here (default: a temporary directory per run)',
@@ -52,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    parts = [p for p in PARTS if p in set(args.only or PARTS)]
+    parts = [] if args.report_only else [p for p in PARTS if p in set(args.only or PARTS)]
     methods = args.methods.split(',') if args.methods else available_methods()
     unknown = sorted(set(methods) - set(available_methods()))
     if unknown:
@@ -107,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
             failed.append(part)
         data['wall_s'] = time.monotonic() - t0
         data['date'] = _now()
+        data['quick'] = quick
         save(part, data)
     results = {p: load(p) for p in PARTS}
     targets = evaluate_targets(results)

@@ -174,7 +174,7 @@ def _cell_text(rec: dict | None, n: int) -> str:
         return '—'
     s = rec['summary']
     if s['n'] == 0:
-        return f'stopped: {rec["status"]}'
+        return rec['status']
     txt = (
         f'{pct(s["accuracy_mean"])} ({pct(s["accuracy_min"])}..{pct(s["accuracy_max"])}) '
         f'{s["seconds_mean"]:.2f} s'
