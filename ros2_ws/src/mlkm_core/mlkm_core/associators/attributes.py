@@ -14,6 +14,8 @@ length NaN) vanishes.
   population density p_pop (a kernel density over the observed lengths with bandwidth
   sqrt(2) sigma_l, so that discrete lengths get their frequency). Cost
   -log((1 - eps) N / p_pop + eps) <= -log eps.
+* Order within a lane (``laneorder``, in queues only): a same-lane link across a gap whose
+  travel times cannot tell neighbours in the lane apart is scored by its rank in the lane.
 * Lane: over the gaps from the track's last known lane (lane a, station s_a) to station s_b,
   stay = prod (1 - p_g). Same lane: ratio stay / P_pop(a at s_b); another lane (chosen like
   the population among the other lanes): ratio (1 - stay) / (1 - P_pop(a at s_b)). P_pop is
@@ -30,6 +32,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from mlkm_core.associators.laneorder import LaneOrder
 from mlkm_core.types import Detections, Layout
 
 #: floor of the length noise [m] (lengths may be reported exactly)
@@ -56,8 +59,15 @@ class AttributeParams:
 class Attributes:
     """Lane and length evidence of one set of detections under ``AttributeParams``."""
 
-    def __init__(self, layout: Layout, d: Detections, params: AttributeParams) -> None:
+    def __init__(
+        self,
+        layout: Layout,
+        d: Detections,
+        params: AttributeParams,
+        order: LaneOrder | None = None,
+    ) -> None:
         self.params = params
+        self.order = order
         n = len(d)
         self.lane = np.full(n, -1, np.int64) if d.lane is None else d.lane.copy()
         self.length = np.full(n, np.nan) if d.length is None else d.length.astype(float)
@@ -92,7 +102,7 @@ class Attributes:
                 z = (self.length[lk[i : i + 2000], None] - ref[None, :]) / bw
                 dens[i : i + 2000] = np.exp(-0.5 * z * z).mean(axis=1)
             self.log_pop_len[lk] = np.log(dens / (bw * math.sqrt(2 * math.pi)) + 1e-300)
-        self.active = bool(known.any() or lk.size)
+        self.active = bool(known.any() or lk.size or order is not None)
 
     def tracker(self, accumulate: bool) -> TrackAttributes:
         return TrackAttributes(self, accumulate)
@@ -106,11 +116,16 @@ class AttributeState:
     sensor: np.ndarray
     lsum: np.ndarray
     lcnt: np.ndarray
+    det: np.ndarray  # last detection
 
     @staticmethod
     def empty(n: int) -> AttributeState:
         return AttributeState(
-            np.full(n, -1, np.int64), np.zeros(n, np.int64), np.zeros(n), np.zeros(n)
+            np.full(n, -1, np.int64),
+            np.zeros(n, np.int64),
+            np.zeros(n),
+            np.zeros(n),
+            np.zeros(n, np.int64),
         )
 
     def take(self, rows: np.ndarray) -> AttributeState:
@@ -146,11 +161,14 @@ class TrackAttributes:
         known = np.isfinite(ln)
         s.lsum[tracks] = np.where(known, ln, 0.0)
         s.lcnt[tracks] = known.astype(float)
+        s.det[tracks] = det
 
     def cost(self, tracks: np.ndarray, det: np.ndarray) -> np.ndarray:
         """NLL ratio of detection det[i] joining track tracks[i] (0 when unknown)."""
         s, a, p = self.state, self.a, self.a.params
         out = np.zeros(det.size)
+        if a.order is not None:
+            out += a.order.cost(s.det[tracks], det)
         # length
         cnt = s.lcnt[tracks]
         ln = a.length[det]
@@ -183,6 +201,7 @@ class TrackAttributes:
 
     def update(self, tracks: np.ndarray, det: np.ndarray) -> None:
         s, a = self.state, self.a
+        s.det[tracks] = det
         lb = a.lane[det]
         known = lb >= 0
         s.lane[tracks[known]] = lb[known]

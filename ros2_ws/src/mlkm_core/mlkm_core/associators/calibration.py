@@ -24,6 +24,7 @@ from mlkm_core.associators.attributes import (
     estimate_attributes,
     has_attributes,
 )
+from mlkm_core.associators.laneorder import estimate_lane_order
 from mlkm_core.associators.likelihood import sequence_nll, track_sequences
 from mlkm_core.associators.linking import link, relabel
 from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, MotionParams
@@ -241,6 +242,8 @@ def _fit_jumps(
     return p
 
 
+#: link passes that refine the in-lane order from their own tracks
+ORDER_ROUNDS = 3
 #: a gap whose first-pass links join fewer than this fraction of its detections is searched
 #: for an extra travel time
 LINKED_FRACTION = 0.6
@@ -338,4 +341,12 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
         p = calibrate(layout, d, raw, p)
         ap = estimate_attributes(layout, d, relabel(raw))
         p = replace(p, attributes=Attributes(layout, d, ap))
+        order = estimate_lane_order(layout, d, relabel(raw))
+        if order is not None:
+            # a queue: the order within lanes is a cue of its own (``laneorder``)
+            for _ in range(ORDER_ROUNDS):
+                p = replace(p, attributes=Attributes(layout, d, ap, order))
+                raw = link(layout, d, p, 'pairwise')
+                order = estimate_lane_order(layout, d, relabel(raw))
+            p = replace(p, attributes=Attributes(layout, d, ap, order))
     return fit_motion(layout, d, relabel(raw), p)
