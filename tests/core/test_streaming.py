@@ -97,7 +97,8 @@ def test_vehicle_leaving_at_an_exit_ends_final_and_is_scored_correct():
     rows = x + y + later
 
     def end_of_x(**kw):
-        run, ended = Run(StreamTracker(ROAD, StreamConfig(lag=10.0), **kw)), None
+        config = StreamConfig(lag=10.0, solve_interval=5.0)
+        run, ended = Run(StreamTracker(ROAD, config, **kw)), None
         for key in sorted(range(len(rows)), key=lambda k: rows[k][1]):
             run.push(key, rows[key])
             if ended is None and list(range(5)) in run.final_tracks().values():
@@ -267,8 +268,10 @@ def test_working_set_stays_bounded_on_a_long_stream():
 
 
 def test_multiframe_stream_is_close_to_batch_on_clutter_data():
+    # measured at the defaults: 99.51 % stream vs 99.75 % batch on these seeds (99.44 vs
+    # 99.63 % on seeds 0-5)
     stream_acc, batch_acc = [], []
-    for seed in (0, 1):
+    for seed in (0, 1, 2):
         ds = simulate(SimConfig(**CLUTTER), seed)
         d = ds.detections
         rows = list(
@@ -280,3 +283,15 @@ def test_multiframe_stream_is_close_to_batch_on_clutter_data():
         batch = make_associator('multiframe').associate(ds.layout, d, ds.n_targets)
         batch_acc.append(accuracy(batch, d.target).accuracy)
     assert 100 * np.mean(stream_acc) >= 100 * np.mean(batch_acc) - 0.5
+
+
+def test_a_long_quiet_gap_is_crossed_without_solving_every_boundary():
+    rows = vehicle(0.0, 25.0) + vehicle(86_400.0, 25.0)  # the next vehicle a day later
+    run = Run(StreamTracker(ROAD, StreamConfig(lag=10.0, solve_interval=5.0)))
+    for key, row in enumerate(rows):
+        run.push(key, row)
+        if key == 10:  # the first push after the gap ended the first vehicle's track
+            assert run.final_tracks() == {0: list(range(10))}
+    run.flush()
+    assert groups(run.labels) == [list(range(10)), list(range(10, 20))]
+    assert run.tracker.stats()['solves'] < 20

@@ -190,18 +190,25 @@ class StreamTracker(TrackBook):
 
     # ----------------------------------------------------------------- revision and commit
     def _advance(self) -> None:
-        """Solve every boundary the newest stamp has passed by the reorder tolerance."""
+        """Solve every boundary the newest stamp has passed by the reorder tolerance.
+
+        Boundaries whose window is empty only end tracks; a run of them is skipped to the
+        first one with a window (or the last passed), ending first the tracks that the
+        skipped boundaries would have ended, so the outcome is that of solving each.
+        """
         c = self.config
         if self._next_k is None:
             return
         last_k = math.floor((self._newest - c.reorder_tolerance) / c.solve_interval)
         while self._next_k <= last_k:
-            if not self._dets:
-                # nothing held: the boundaries in between would change nothing
-                self._next_k = last_k
-                self._committed_until = max(
-                    self._committed_until, last_k * c.solve_interval - c.lag
-                )
+            oldest = min((self._dets[k].stamp for k in self._pending), default=math.inf)
+            first_k = math.floor(oldest / c.solve_interval) + 1 if oldest < math.inf else last_k
+            target = min(max(first_k, self._next_k), last_k)
+            if target > self._next_k:
+                skipped = (target - 1) * c.solve_interval
+                self._committed_until = max(self._committed_until, skipped - c.lag)
+                self._finalize(skipped, False)
+                self._next_k = target
             self._solve(self._next_k)
             self._next_k += 1
 
