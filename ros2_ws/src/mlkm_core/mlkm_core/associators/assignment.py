@@ -12,12 +12,17 @@ time-gated candidate graph) with dummy rows and columns:
 * a track left unmatched is a miss: it pays -log p_miss and is carried forward to the next
   sensors (at most 3 in a row) with the larger variance of the longer gap;
 * a detection left unmatched starts a new track (cost -log of the false-alarm density);
-* a track that ends with a single detection is a false alarm: UNASSIGNED (-1).
+* a track that ends with a single detection is a false alarm: UNASSIGNED (-1);
+* where the data show them, the cost also carries: abrupt speed changes (a two-component
+  mixture, ``motion``), an extra travel time per gap between sensors (road works, a queue),
+  and, for loop detectors, the lane and vehicle length (``attributes``) and the order of
+  passage within a lane in queues (``laneorder``);
+* a lane change on top of a station, reported by both lanes' loops, keeps one track
+  (``linking.merge_double_reports``).
 
-The variances are not given to the method: they are estimated from the data (pass 1 with
-generic values, then the moments and the maximum likelihood of its tracks,
-``calibration``), the
-same estimates ``multiframe`` uses, so the two differ only in the evidence they use.
+The parameters are not given to the method: they are estimated from the data (pass 1 with
+generic values, then the moments and the maximum likelihood of its tracks, ``calibration``),
+the same estimates ``multiframe`` uses, so the two differ only in the evidence they use.
 """
 
 from __future__ import annotations

@@ -18,11 +18,15 @@ from higher-order evidence. Two sources:
    is left. It starts from the Kalman pass and, for inputs of up to ``DUAL_START_MAX``
    detections, also from the pairwise pass; the more likely result (Kalman model) is kept.
 
-The model parameters are estimated from the data (``calibration.estimate_params``). The local
-search scores at most ``AssociatorConfig.search_budget`` candidates per starting point. When
-neither starting point can be scored (the likelihood is not finite, e.g. on stop-and-go
-traffic at near-zero speeds), the result is the pairwise assignment's; a cut-short search and
-the fallback both issue a ``DegradedResultWarning``.
+The model parameters are estimated from the data (``calibration.estimate_params``), lane and
+length included when reported. On an open road (``AssociatorConfig.entries`` / ``exits``) a
+track that starts after an entry or ends before an exit pays only for the sensors it could
+have passed. The local search scores at most ``AssociatorConfig.search_budget`` candidates per
+starting point. The result is the pairwise assignment's when the Kalman model predicts the
+calibrated pairwise tracks clearly worse than the pairwise model (``kalman_fits``: stop-and-go
+traffic, where its likelihood would steer the search wrong, and where the search used to cost
+minutes) or when neither starting point can be scored (the likelihood is not finite); a
+cut-short search and both fallbacks issue a ``DegradedResultWarning``.
 
 Why this and not a min-cost flow or a full multi-dimensional assignment: the flow needs
 pairwise (Markov) edge costs, which cannot carry the learnt cruise speed, and the S-D
