@@ -71,7 +71,8 @@ class Detections:
 
     ``lane`` (index from the right, 0 = rightmost, ``UNKNOWN_LANE`` = -1) and ``length``
     (vehicle length [m], NaN = unknown) are optional per-detection measurements that
-    sensors reporting them (loop detectors) fill in; the associators ignore them.
+    sensors reporting them (loop detectors) fill in; assignment, multiframe and mlkm_robust use
+    them in their link costs (``associators.attributes``).
     """
 
     sensor_index: np.ndarray  # int, index into Layout.positions
