@@ -13,7 +13,6 @@ from pathlib import Path
 from mlkm_core.associators import available_methods
 
 from . import cost, grid, peer, soak, sumo
-from .live import run_live
 from .plots import plot_all
 from .report import write_readme
 from .targets import evaluate_targets
@@ -21,6 +20,14 @@ from .targets import evaluate_targets
 #: Parts in the order they run: the ones that fork child processes come before the ones that
 #: start DDS participants in this process (soak).
 PARTS = ('grid', 'peer', 'cost', 'sumo', 'live', 'soak')
+
+
+def _run_live(out_dir: Path, log) -> dict:
+    # imported here: ``python -m mlkm_experiments.bench.live`` must not find the module
+    # already imported by the package
+    from .live import run_live
+
+    return run_live(out_dir, log)
 
 
 def _now() -> str:
@@ -95,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         'sumo': lambda: sumo.run_sumo(
             methods, sumo.SEEDS_QUICK if quick else sumo.SEEDS_FULL, log, args.cache_dir
         ),
-        'live': lambda: run_live(out_dir, log),
+        'live': lambda: _run_live(out_dir, log),
         'soak': lambda: soak.run_soak(
             log, episodes=soak.QUICK_EPISODES if quick else soak.EPISODES
         ),
