@@ -8,11 +8,14 @@ last station or at off-ramps, detections are missed and false alarms occur.
 Mechanism
 ---------
 1. **Immediate link.** Each ``push`` links the detection at once: the open tracks whose
-   latest detection lies 1 to 1 + ``max_skip`` stations upstream are predicted to its
-   station with the pairwise motion model (travel time and speed continuity, gated at
-   6 sigma, the model's parameters calibrated on the stream); the cheapest gated track takes
-   it if that beats starting a new track (cheaper right after an on-ramp and at the first
-   station), else it starts a new TENTATIVE track. This is what a live consumer sees first.
+   latest detection lies 1 to 1 + ``max_skip`` stations upstream (or as far downstream, for
+   a track without a detection at its station: stamps out of road order under noise) are
+   predicted to its station with the pairwise motion model (travel time and speed
+   continuity, gated at 6 sigma, the model's parameters calibrated on the stream); the
+   cheapest gated track takes it if that beats starting a new track (cheaper right after an
+   on-ramp and at the first station), else it starts a new TENTATIVE track. This is what a
+   live consumer sees first; the *revision rate* is the share of committed detections whose
+   link first published (the detection it followed in its track, or none) changed.
 2. **Revision in a window.** At every boundary B = k * ``solve_interval`` of stamp time, once
    the newest stamp is ``reorder_tolerance`` past B, the uncommitted detections stamped
    before B are re-solved together with *anchors*: the last ``anchor_depth`` committed

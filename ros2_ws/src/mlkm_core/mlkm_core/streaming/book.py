@@ -27,14 +27,13 @@ COUNTERS = (
 
 
 class Det:
-    __slots__ = ('key', 'sensor', 'stamp', 'velocity', 'lane', 'length', 'track', 'first', 'born')
+    __slots__ = ('key', 'sensor', 'stamp', 'velocity', 'lane', 'length', 'track', 'first')
 
     def __init__(self, key, sensor, stamp, velocity, lane, length) -> None:
         self.key, self.sensor, self.stamp, self.velocity = key, sensor, stamp, velocity
         self.lane, self.length = lane, length
         self.track = -1  # current track id (tentative or committed)
-        self.first = -1  # track id first published
-        self.born = False  # the push started a new track
+        self.first = -1  # key of the detection it was first linked after, -1: it started a track
 
 
 def as_detections(rows: list[Det]) -> Detections:

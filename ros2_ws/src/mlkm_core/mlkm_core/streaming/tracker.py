@@ -81,7 +81,9 @@ class StreamTracker(TrackBook):
     def stats(self) -> dict:
         """Counters: pushed, linked, started, late, reordered, committed, assigned,
         false_alarms, revised, solves, degraded, final_tracks, rejected; and the gauges
-        working_set, open_tracks and revision_rate (revised / committed)."""
+        working_set, open_tracks and revision_rate: revised / committed, the share of
+        committed detections whose link first published (the detection it followed in its
+        track, or none) changed before the commit."""
         out = {name: self._stats[name] for name in COUNTERS}
         out['working_set'] = self.working_set
         out['open_tracks'] = len(self._tracks)
@@ -116,14 +118,12 @@ class StreamTracker(TrackBook):
         d = Det(key, sensor_index, stamp, velocity, int(lane), float(length))
         self._dets[key] = d
         self._pending.add(key)
-        tid = self._link_now(d)
+        tid, d.first = self._link_now(d)
         if tid >= 0:
             self._stats['linked'] += 1
         else:
             self._stats['started'] += 1
             tid = self._new_track()
-            d.born = True
-        d.first = tid
         self._move(d, tid)
         self._retail(tid)
         return self._end()
@@ -165,28 +165,35 @@ class StreamTracker(TrackBook):
         return key, sensor_index, stamp, velocity
 
     # ----------------------------------------------------------------- immediate link
-    def _link_now(self, d: Det) -> int:
-        """Best open track for ``d`` by the gated pairwise prediction from its latest
-        detection (1 + max_skip stations upstream at most), or -1 for a new track."""
+    def _link_now(self, d: Det) -> tuple[int, int]:
+        """(track, key of the detection ``d`` follows in it) by the gated pairwise prediction,
+        or (-1, -1) for a new track. Candidates: the open tracks whose latest detection lies
+        1 to 1 + max_skip stations upstream, and those whose latest detection lies up to that
+        far downstream but that have no detection at d's station (stamps out of road order
+        under noise, or a miss filled in), predicted from their detection just upstream."""
         p = self._params
         s = d.sensor
-        cands = [
-            (tid, self._dets[self._tail_of[tid][0]])
-            for j in range(max(0, s - 1 - p.max_skip), s)
-            for tid in self._tails[j]
-        ]
-        cands = [(tid, t) for tid, t in cands if t.stamp < d.stamp]
+        cands = []
+        for j in range(max(0, s - 1 - p.max_skip), min(self.layout.n_sensors, s + 2 + p.max_skip)):
+            for tid in self._tails[j] if j != s else ():
+                if j < s:
+                    prev = self._dets[self._tail_of[tid][0]]
+                    if prev.stamp < d.stamp:
+                        cands.append((tid, prev))
+                    continue
+                members = [self._dets[k] for k in self._tracks[tid]]
+                if any(m.sensor == s for m in members):
+                    continue
+                up = [m for m in members if m.sensor < s]
+                if up:
+                    cands.append((tid, max(up, key=lambda m: (m.sensor, m.stamp))))
         if not cands:
-            return -1
-        tails = (
-            [t.sensor for _, t in cands],
-            [t.stamp for _, t in cands],
-            [t.velocity for _, t in cands],
-        )
+            return -1, -1
+        tails = tuple([getattr(t, f) for _, t in cands] for f in ('sensor', 'stamp', 'velocity'))
         birth = p.miss_cost if self._after_entry[s] else p.new_cost
         w = link_weights(p, self.layout, tails, s, d.stamp, d.velocity, birth)
         best = int(np.argmin(w))
-        return int(cands[best][0]) if w[best] < 0 else -1
+        return (cands[best][0], cands[best][1].key) if w[best] < 0 else (-1, -1)
 
     # ----------------------------------------------------------------- revision and commit
     def _advance(self) -> None:
@@ -295,14 +302,16 @@ class StreamTracker(TrackBook):
         touched = set()
         for d in due:
             tid = d.track
-            size = sum(
-                1
-                for k in self._tracks[tid]
-                if k not in self._pending or self._dets[k].stamp < bound
-            )
+            members = [
+                m
+                for m in (self._dets[k] for k in self._tracks[tid])
+                if m.key not in self._pending or m.stamp < bound
+            ]
             self._pending.discard(d.key)
             self._stats['committed'] += 1
-            if size >= 2:
+            before = [m for m in members if (m.sensor, m.stamp) < (d.sensor, d.stamp)]
+            link = max(before, key=lambda m: (m.sensor, m.stamp)).key if before else -1
+            if len(members) >= 2:
                 label = tid
                 self._n_committed[tid] += 1
                 self._stats['assigned'] += 1
@@ -313,7 +322,7 @@ class StreamTracker(TrackBook):
                 touched.add(tid)
                 self._unassigned.append(d.key)
                 self._stats['false_alarms'] += 1
-            if label != d.first and not (label == -1 and d.born):
+            if (link if label >= 0 else -1) != d.first:  # the link first published changed
                 self._stats['revised'] += 1
             self._committed.append((d.key, label))
             self._history.append((d.sensor, d.stamp, d.velocity))
