@@ -295,3 +295,20 @@ def test_a_long_quiet_gap_is_crossed_without_solving_every_boundary():
     run.flush()
     assert groups(run.labels) == [list(range(10)), list(range(10, 20))]
     assert run.tracker.stats()['solves'] < 20
+
+
+def test_flush_on_a_quiet_road_then_the_stream_goes_on():
+    first, second = vehicle(0.0, 25.0), vehicle(100.0, 25.0)
+    run = Run(StreamTracker(ROAD))
+    for key, row in enumerate(first):
+        run.push(key, row)
+    u = run.flush()
+    assert [(t.status, t.keys.tolist()) for t in u.tracks] == [(FINAL, list(range(10)))]
+    assert run.tracker.working_set == 0 and u.committed_until == first[-1][1]
+    late = run.push(99, (9, first[-1][1] - 1.0, 25.0))
+    assert late.unassigned.tolist() == [99]
+    for key, row in enumerate(second, start=10):
+        run.push(key, row)
+    run.flush()
+    assert groups(run.labels) == [list(range(10)), list(range(10, 20))]
+    assert run.labels[99] == -1 and run.tracker.stats()['late'] == 1

@@ -265,7 +265,8 @@ class StreamTracker(TrackBook):
             own, groups = owners(labels, dets.sensor_index, anchor_track, last, occupied)
             self._apply(window, own[n_a:], [g - n_a for g in groups])
             self._commit([d for d in window if d.stamp < cutoff], bound)
-        self._committed_until = max(self._committed_until, cutoff)
+        if not final:  # a flush commits up to the newest stamp (``flush``)
+            self._committed_until = max(self._committed_until, cutoff)
         self._finalize(bound, final)
 
     def _apply(self, window: list[Det], own: np.ndarray, groups: list[np.ndarray]) -> None:
