@@ -262,7 +262,10 @@ class StreamTracker(TrackBook):
                 tid: {self._dets[k].sensor for k in self._tracks[tid] if k not in self._pending}
                 for tid in set(anchor_track[:n_a].tolist())
             }
-            own, groups = owners(labels, dets.sensor_index, anchor_track, last, occupied)
+            slack = 6 * math.sqrt(2) * self._params.stamp_noise
+            own, groups = owners(
+                labels, dets.sensor_index, dets.stamp, anchor_track, last, occupied, slack
+            )
             self._apply(window, own[n_a:], [g - n_a for g in groups])
             self._commit([d for d in window if d.stamp < cutoff], bound)
         if not final:  # a flush commits up to the newest stamp (``flush``)

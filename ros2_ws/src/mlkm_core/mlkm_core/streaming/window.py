@@ -50,9 +50,11 @@ def solve_window(
 def owners(
     labels: np.ndarray,
     sensor: np.ndarray,
+    stamp: np.ndarray,
     anchor_track: np.ndarray,
     last_anchor: np.ndarray,
     occupied: dict[int, set[int]],
+    slack: float,
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """Map window clusters onto tracks.
 
@@ -60,10 +62,12 @@ def owners(
     window detection), ``last_anchor`` marks each track's most downstream committed
     detection, ``occupied`` holds the stations of each track's committed detections. A
     cluster holding the last anchors of tracks at stations s_1 < s_2 < ... gives a window
-    detection at station s to the track of the largest s_j <= s (the first track for
-    s < s_1), unless that track has a committed detection at s (two window detections of a
-    cluster at one station both join: a double report the method merged); the other window
-    detections of the cluster form a new group (as do clusters without a last anchor).
+    detection at station s to the track of the largest s_j <= s, unless that track has a
+    committed detection at s (two window detections of a cluster at one station both join:
+    a double report the method merged). A window detection upstream of every last anchor
+    (s < s_1) joins the first track only if its stamp is at most ``slack`` [s] after that
+    anchor's (stamps out of road order under noise). The other window detections of the
+    cluster form a new group (as do clusters without a last anchor).
 
     Returns (track of each window row or -1, groups of window rows without a track).
     """
@@ -77,7 +81,9 @@ def owners(
         elif anchor_track[i] < 0:
             groups.append(np.array([i], np.int64))
     for members in clusters.values():
-        heads = sorted((int(sensor[i]), int(anchor_track[i])) for i in members if last_anchor[i])
+        heads = sorted(
+            (int(sensor[i]), int(anchor_track[i]), i) for i in members if last_anchor[i]
+        )
         starts = [h[0] for h in heads]
         rest = []
         for i in sorted(members, key=lambda i: sensor[i]):
@@ -85,8 +91,10 @@ def owners(
                 continue
             s = int(sensor[i])
             if heads:
-                track = heads[max(bisect.bisect_right(starts, s) - 1, 0)][1]
-                if s not in occupied.get(track, ()):
+                j = bisect.bisect_right(starts, s) - 1
+                _, track, head = heads[max(j, 0)]
+                fits = j >= 0 or stamp[i] <= stamp[head] + slack
+                if fits and s not in occupied.get(track, ()):
                     owner[i] = track
                     continue
             rest.append(i)
