@@ -27,8 +27,11 @@ Mechanism
    ``mlkm_no_ec``, ``kmeans_*`` and ``mlkm_robust`` over the sliding window with the number of
    clusters estimated from the window (its largest per-station count). Each method calibrates
    its motion model on the window it is given; the anchors carry the open tracks' recent
-   history into it. With a lag longer than the input nothing is committed before ``flush``,
-   whose window is the whole input: the stream gives exactly the batch association.
+   history into it, and ``assignment``, ``multiframe`` and ``mlkm_robust`` also get the
+   detections of the most recently ended tracks (``context_size``), so that sparse traffic
+   still gives them enough tracks to calibrate on (their clusters are not used). With a lag
+   longer than the input nothing is committed before ``flush``, whose window is the whole
+   input: the stream gives exactly the batch association.
 3. **Stitching onto stable ids.** The window's clusters are mapped back through the anchors:
    a cluster holding the last committed detection of an open track continues that track (of
    several such tracks, each takes the cluster's window detections from its own last

@@ -36,6 +36,12 @@ class StreamConfig:
     reorder_tolerance: float = 1.0
     confirm_count: int = 2  # detections that make a track CONFIRMED
     anchor_depth: int = 3  # committed detections per open track given to each window solve
+    # detections of the most recently ended tracks (of 3 or more) added to each window solve
+    # of assignment, multiframe and mlkm_robust, which calibrate their motion model on their
+    # input: on sparse traffic a window alone holds too few tracks for it (paper simulator in
+    # clutter, seeds 0-1: multiframe 99.58 -> 99.68 %, assignment 95.21 -> 96.37 %, equal to
+    # batch); 0 = none
+    context_size: int = 300
     calibration_size: int = 1000  # committed detections kept for the self-calibration
     calibration_every: int = 6  # recalibrate the motion model every this many solves
     segment_size: int = 5  # K of the MLKM methods (sensors per segment)
@@ -60,6 +66,7 @@ class StreamConfig:
             ),
             (self.confirm_count >= 1, 'confirm_count must be >= 1'),
             (self.anchor_depth >= 1, 'anchor_depth must be >= 1'),
+            (self.context_size >= 0, 'context_size must be >= 0'),
             (self.calibration_size >= 0, 'calibration_size must be >= 0'),
             (self.calibration_every >= 1, 'calibration_every must be >= 1'),
             (self.segment_size >= 1, 'segment_size must be >= 1'),

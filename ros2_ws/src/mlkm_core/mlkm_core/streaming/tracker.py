@@ -19,8 +19,14 @@ from mlkm_core.streaming.motion import calibrate_on, link_weights, overdue_at
 from mlkm_core.streaming.window import owners, solve_window
 from mlkm_core.types import UNKNOWN_LANE, Layout
 
-
 #: the counters of ``StreamTracker.stats``
+#: methods given the detections of recently ended tracks as context (they calibrate their
+#: motion model on their input; the K-means methods would cluster the context too)
+CONTEXT_METHODS = ('assignment', 'multiframe', 'mlkm_robust')
+#: ``anchor_track`` of a context row in a window solve
+CONTEXT = -2
+
+
 class StreamTracker(TrackBook):
     """Associates an endless stream of detections into tracks with a fixed commit lag."""
 
@@ -55,6 +61,7 @@ class StreamTracker(TrackBook):
             s = int(np.searchsorted(pos, float(x))) - 1
             if s >= 0:
                 self._before_exit[s] = True
+        self._context: deque = deque(maxlen=config.context_size)
         self._history: deque = deque(maxlen=config.calibration_size)
         self._params = MotionParams()
         self._calibrated_at: int | None = None
@@ -248,6 +255,8 @@ class StreamTracker(TrackBook):
         if window:
             self._stats['solves'] += 1
             anchors = sorted(self._anchors(), key=lambda a: canon(a[0]))
+            context = list(self._context) if self.config.method in CONTEXT_METHODS else []
+            anchors = [(d, CONTEXT, False) for d in context] + anchors
             rows = [a[0] for a in anchors] + window
             dets = as_detections(rows)
             if not final:
@@ -260,7 +269,7 @@ class StreamTracker(TrackBook):
             last = np.array([a[2] for a in anchors] + [False] * len(window), bool)
             occupied = {
                 tid: {self._dets[k].sensor for k in self._tracks[tid] if k not in self._pending}
-                for tid in set(anchor_track[:n_a].tolist())
+                for tid in set(anchor_track[:n_a].tolist()) - {CONTEXT}
             }
             slack = 6 * math.sqrt(2) * self._params.stamp_noise
             own, groups = owners(
@@ -367,6 +376,8 @@ class StreamTracker(TrackBook):
             self._drop_track(tid, np.array([d.key for d in done], np.int64))
             for d in done:
                 del self._dets[d.key]
+            if len(done) >= 3:
+                self._context.extend(sorted(done, key=canon))
             self._stats['final_tracks'] += 1
 
     def _calibrate(self, k: int, window: list[Det]) -> None:

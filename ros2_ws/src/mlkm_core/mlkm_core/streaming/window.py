@@ -78,7 +78,7 @@ def owners(
     for i in range(n):
         if labels[i] >= 0:
             clusters.setdefault(int(labels[i]), []).append(i)
-        elif anchor_track[i] < 0:
+        elif anchor_track[i] == -1:
             groups.append(np.array([i], np.int64))
     for members in clusters.values():
         heads = sorted(
@@ -87,7 +87,7 @@ def owners(
         starts = [h[0] for h in heads]
         rest = []
         for i in sorted(members, key=lambda i: sensor[i]):
-            if anchor_track[i] >= 0:
+            if anchor_track[i] != -1:
                 continue
             s = int(sensor[i])
             if heads:
