@@ -36,7 +36,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--stations', type=int, default=10, help='sensor stations (10)')
     p.add_argument('--seed', type=int, default=1, help='seed of the source (1)')
     p.add_argument('--method', default='multiframe', help='stream associator (multiframe)')
-    p.add_argument('--lag', type=float, default=15.0, help='commit lag [s] (15)')
+    p.add_argument(
+        '--lag',
+        type=float,
+        default=30.0,
+        help='commit lag [s] (30: longer than a vehicle takes between two stations)',
+    )
     p.add_argument('--window', type=float, default=30.0, help='scoring window [s] (30)')
     p.add_argument('--source', choices=('sumo', 'sim'), default='sumo', help='source (sumo)')
     p.add_argument('--scenario', default='ramps', help='SUMO scenario (ramps)')

@@ -94,7 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument('--timeout', type=float, default=120.0, help='give up after [s] (120)')
     p.add_argument(
-        '--lag', type=float, default=15.0, help='stream bags: commit lag [s] (15, as the demo)'
+        '--lag',
+        type=float,
+        default=None,
+        help="stream bags: commit lag [s] (default: the recording node's, from the bag's "
+        '/diagnostics, else 15)',
     )
     args = p.parse_args(argv)
     bag = args.bag.resolve()
@@ -202,7 +206,9 @@ def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: lis
     from demo_stream import all_scored, format_stream_scores, scoring_state, start_stream_graph
 
     recorded = {k: s for k, s in scores.items() if s.mode == s.MODE_STREAM}
-    method = args.method or next((s.method for s in recorded.values()), 'multiframe')
+    settings = _recorded_stream_settings(bag)
+    method = args.method or settings.get('stream.method') or 'multiframe'
+    args.lag = args.lag or float(settings.get('stream.lag') or 15.0)
     window = 60.0
     for s in recorded.values():
         length = _seconds(s.window_end) - _seconds(s.window_start)
@@ -270,6 +276,22 @@ def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: lis
         )
     print(f'replay: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
+
+
+def _recorded_stream_settings(bag: Path) -> dict[str, str]:
+    """The recording association node's stream settings (stream.lag, stream.method) from
+    the /diagnostics it published into the bag; empty when there are none."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.serialization import deserialize_message
+
+    from rosbag_mcap.storage import BagReader
+
+    for message in BagReader(bag).messages(topics=['/diagnostics']):
+        for status in deserialize_message(message.data, DiagnosticArray).status:
+            values = {kv.key: kv.value for kv in status.values}
+            if 'stream.lag' in values:
+                return values
+    return {}
 
 
 def _player_args(bag: Path, args: argparse.Namespace) -> list[str]:

@@ -214,10 +214,13 @@ class TrackerState:
             self.counts['missing_rows'] = self.counts.get('missing_rows', 0) + missing
         if merged.committed_until > self.committed_until:
             self.committed_until = merged.committed_until
+        if flushed and math.isfinite(self.newest):
+            # every detection seen is committed, the newest one included
+            self.committed_until = max(self.committed_until, self.newest + 1e-9)
         data = None
         if tracks or unassigned or flushed:
             committed = self.committed_until
-            if committed == math.inf:  # flushed: every detection seen is committed
+            if committed == math.inf:
                 committed = self.newest + 1e-9
             data = self._encode(
                 method=self._settings.method,
@@ -346,8 +349,11 @@ class TrackerProcess:
     def put(self, item: Item | None) -> None:
         self._items.put(item)
 
-    def get(self) -> Answer | None:
+    def get(self, timeout: float | None = None) -> Answer | None:
+        """The next Answer (None once the process ended); TimeoutError after ``timeout``."""
         try:
+            if timeout is not None and not self._answers.poll(timeout):
+                raise TimeoutError(f'no answer from the tracker process in {timeout:g} s')
             return self._answers.recv()
         except (EOFError, OSError):
             return None
@@ -383,7 +389,12 @@ def _serve(items, answers, parent: int, settings: TrackerSettings) -> None:
             if os.getppid() != parent:
                 return
             continue
-        for _ in range(MAX_BATCH):
+        for n in range(MAX_BATCH):
+            if n:
+                try:
+                    item = items.get_nowait()
+                except _queue.Empty:
+                    break
             if item is None:
                 _send(answers, state.release(drain=True))
                 answers.send(None)
@@ -399,10 +410,6 @@ def _serve(items, answers, parent: int, settings: TrackerSettings) -> None:
                     _send(answers, state.set_layout(*item[1:]))
                 else:
                     _send(answers, state.flush(item[1]))
-            try:
-                item = items.get_nowait()
-            except _queue.Empty:
-                break
         _send(answers, state.release())
 
 
