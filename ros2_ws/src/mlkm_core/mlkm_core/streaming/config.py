@@ -21,15 +21,16 @@ class StreamConfig:
     # [s] a link may be revised until the newest stamp is `lag` past the detection's stamp,
     # then it is committed for good. It must exceed the travel time between consecutive
     # stations (else a vehicle's first detection is committed alone, as a false alarm).
-    # Measured with multiframe, solve_interval 10 s (mean accuracy, stream vs batch):
-    # paper simulator in clutter, 50 targets / 20 sensors, seeds 0-5: lag 10 s 99.35 %,
-    # 15 s 99.44 %, 30 s 99.42 % vs 99.63 %; SUMO highway 200 vehicles / 20 stations (up to
-    # 627 m apart), seed 1: 10 s 98.78 %, 15 s 99.38 %, 30 s 99.40 % vs 99.45 %. 15 s is the
-    # shortest lag within 0.5 points of batch on both; a detection is then committed 16-26 s
-    # of stamp time after its stamp (median 21 s on the highway).
+    # Measured with multiframe at the other defaults (mean accuracy, stream vs batch): paper
+    # simulator in clutter, 50 targets / 20 sensors, seeds 0-5: lag 10 s 99.74 %, 15 s
+    # 99.72 %, 30 s 99.75 % vs 99.63 %; SUMO highway 200 vehicles / 20 stations (up to 627 m
+    # apart, 320 m to the second station), seed 1: 10 s 98.75 %, 15 s 99.38 %, 30 s 99.40 %
+    # vs 99.45 %. 15 s is the shortest lag within 0.5 points of batch on both; a detection
+    # is then committed 16-26 s of stamp time after its stamp (median 21 s on the highway).
     lag: float = 15.0
     # [s] the window is re-solved at every multiple of this; 10 s beat 5 s on the paper
-    # simulator (99.44 vs 99.21 % at lag 15 s): longer windows calibrate the model better
+    # simulator (99.44 vs 99.21 % at lag 15 s without context): longer windows calibrate
+    # the methods' model better, and it halves the solves
     solve_interval: float = 10.0
     # [s] pushes may arrive this much out of stamp order without changing any committed
     # label: a window is solved once the newest stamp is this far past its boundary
