@@ -330,7 +330,8 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument(
         '--stream',
         action='store_true',
-        help='associate as a stream (pushes in stamp order, links committed after --lag)',
+        help='associate as a stream (pushes in stamp order, links committed after --lag; '
+        'the number of targets of each window is its largest per-sensor count, not --targets)',
     )
     a.add_argument(
         '--lag',
