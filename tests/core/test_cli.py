@@ -385,3 +385,11 @@ def test_stream_takes_ramp_positions_and_refuses_bad_ones(tmp_path, capsys):
         assert exc.value.code == 2
     assert _associate(tmp_path, 'in.csv', '--stream', '--lag', '0') == 2
     assert 'lag must be a finite number > 0' in capsys.readouterr().err
+
+
+def test_sumo_subcommand_hands_its_arguments_to_mlkm_sumo(capsys):
+    pytest.importorskip('mlkm_sumo')
+    assert main(['sumo', '--help']) == 0
+    assert 'usage: mlkm sumo' in capsys.readouterr().out
+    assert main(['sumo', '--scenario', 'nope', '--out', 'x.csv']) == 2
+    assert "mlkm sumo: error: unknown scenario 'nope'" in capsys.readouterr().err
