@@ -11,7 +11,6 @@ switches back to stream.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
@@ -68,6 +67,7 @@ class ModeSwitch:
             self._decide()
         if self.mode != STREAM:
             return False
+        self.stream.ingest.bounds = self._node.assembler.bounds  # live parameter changes
         stamp = msg.header.stamp
         self.stream.add(
             msg.sensor_id,
@@ -164,7 +164,3 @@ class ModeSwitch:
     def close(self) -> None:
         if self.stream is not None:
             self.stream.close()
-
-
-def lag_check(value: float) -> str | None:
-    return None if math.isfinite(value) and value > 0 else 'must be a finite number > 0'
