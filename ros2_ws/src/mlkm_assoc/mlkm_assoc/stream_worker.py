@@ -2,10 +2,11 @@
 process of its own, fed detection by detection, answering with ready-to-publish TrackArrays.
 
 The node's executor thread only validates a detection and queues it (fast ingest); this
-process pushes it into the tracker at once, so a window re-solve inside the tracker holds up
-neither the node's GIL nor its ingest. Detections are pushed in the order they arrived; the
-tracker's reorder tolerance makes the committed labels a function of the detections alone,
-so live equals ``mlkm associate --stream`` on the same detections.
+process puts it through the reorder buffer (:mod:`mlkm_assoc.reorder`, which undoes the
+round-robin over the sensor topics) into the tracker, so a window re-solve inside the tracker
+holds up neither the node's GIL nor its ingest (the detections queued behind it wait, though).
+With the tracker's own reorder tolerance, the committed labels are a function of the
+detections alone, so live equals ``mlkm associate --stream`` on the same detections.
 
 Whatever is queued when the process gets to it is pushed as one batch and answered with one
 TrackArray holding the latest state of every track the batch changed (TrackArray
@@ -29,7 +30,7 @@ from mlkm_assoc.reorder import ReorderBuffer
 from mlkm_core.types import Layout
 
 NS_PER_S = 1_000_000_000
-#: Queued items pushed as one batch at most [-].
+#: Queued items (detections and ticks) taken as one batch at most [-].
 MAX_BATCH = 512
 #: Track status values (road_sensor_msgs/Track.STATUS_*; the core's TENTATIVE..FINAL).
 TENTATIVE, CONFIRMED, FINAL = 0, 1, 2
