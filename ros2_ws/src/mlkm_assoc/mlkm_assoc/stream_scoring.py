@@ -16,9 +16,11 @@ of ``window`` seconds of stamp time:
   detection no track holds counts as unassigned, never correct); cumulatively the core's
   ``accuracy`` over every window scored so far, kept as the track x vehicle contingency
   counts (one entry per pair that shares a detection), so one mapping for the whole run.
-* Revision rate: a *link* is a detection's assignment to a track (or to none). Of the
-  window's detections first published by the node, the share whose committed track differs
-  from the one they were first published in.
+* Revision rate: a detection's *link* is the detection it follows in its track (in road
+  order; none for the first of a track and for an unassigned detection), as the core's
+  tracker counts revisions, so a track that only changed its id revises nothing. Of the
+  window's detections published by the node, the share whose committed link differs from
+  the one first published.
 * Memory: everything of a window is dropped once it is scored; late truth or tracks for it
   are counted and ignored; at most ``max_buffered_truth`` truth messages are held.
 """
@@ -105,7 +107,8 @@ class StreamScorer:
         self.max_buffered_truth = max_buffered_truth
         self._sensor_index = sensor_index
         self.truth: dict[Key, tuple[int, float]] = {}  # -> (target, true velocity)
-        self.first: dict[Key, int] = {}  # label first published
+        self.first: dict[Key, Key | None] = {}  # link first published
+        self.link: dict[Key, Key | None] = {}  # link last published
         self.current: dict[Key, tuple[int, int]] = {}  # -> (label, status)
         self.committed_until = -(2**63)
         self.method = ''
@@ -126,14 +129,20 @@ class StreamScorer:
     def add_tracks(
         self, method: str, keys: list[Key], labels, status, committed_ns: int, now: float
     ) -> None:
+        """The detections of one stream TrackArray, each track's in road order."""
         self.method = method
         self._last_tracks = now
         done = self.next_start
+        prev_key, prev_label = None, -1
         for key, label, state in zip(keys, labels, status):
+            # a track's detections come in road order: each follows the one before it
+            link = prev_key if label >= 0 and label == prev_label else None
+            prev_key, prev_label = key, label
             if done is not None and key[2] < done:
                 self.events['tracks_after_score'] += 1
                 continue
-            self.first.setdefault(key, label)
+            self.first.setdefault(key, link)
+            self.link[key] = link
             self.current[key] = (label, state)
             self._start(key[2])
         self.committed_until = max(self.committed_until, committed_ns)
@@ -207,7 +216,7 @@ class StreamScorer:
         truth_keys = self._window_keys(start, end, self.truth)
         labels = {k: self.current[k][0] for k in tracked}
         truth_set = set(truth_keys)
-        revised = sum(1 for k in tracked if self.first[k] != labels[k])
+        revised = sum(1 for k in tracked if self.first[k] != self.link[k])
         result = None
         if truth_keys:
             values = [self.truth[k] for k in truth_keys]
@@ -229,7 +238,7 @@ class StreamScorer:
             self.incomplete += 1
         self._published_total += len(tracked)
         self._revised_total += revised
-        for source in (self.truth, self.first, self.current):
+        for source in (self.truth, self.first, self.link, self.current):
             for k in [k for k in source if k[2] < end]:
                 del source[k]
         number, self.number = self.number, self.number + 1
