@@ -77,3 +77,41 @@ def plot_all(out_dir: Path, grid: dict, cost: dict) -> list[str]:
         plt.close(fig)
         files.append(fname)
     return files
+
+
+def plot_stream(out_dir: Path, stream: dict) -> list[str]:
+    """``stream_lag.png`` (accuracy against the commit lag) and ``stream_rss.png`` (resident
+    set of the association node and its tracker process over simulated time)."""
+    from .stream_lag import plot_lag
+
+    files = [f for f in [plot_lag(out_dir, stream.get('lag', {}))] if f]
+    mem = stream.get('memory', {})
+    pts = [s for s in mem.get('samples', []) if s['newest'] is not None and s['node']]
+    if not pts:
+        return files
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    t0 = pts[0]['newest']
+    x = [(s['newest'] - t0) / 60 for s in pts]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    node = [s['node'] / 2**20 for s in pts]
+    trk = [(s['tracker'] or 0) / 2**20 for s in pts]
+    ax.plot(x, node, '-', lw=1, label='association_node')
+    ax.plot(x, trk, '-', lw=1, label='its tracker process')
+    ax.plot(x, [a + b for a, b in zip(node, trk, strict=True)], '-', lw=1.5, label='sum')
+    span = x[-1]
+    for f in (1 / 6, 2 / 6, 5 / 6):
+        ax.axvline(f * span, color='grey', ls=':', lw=1)
+    ax.set_xlabel('simulated time the node has reached [min]')
+    ax.set_ylabel('resident set [MiB]')
+    ax.set_ylim(bottom=0)
+    ax.set_title(f'Stream mode memory: {mem.get("scenario", "")}', fontsize=9)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out_dir / 'stream_rss.png', dpi=110)
+    plt.close(fig)
+    return [*files, 'stream_rss.png']

@@ -8,6 +8,7 @@ from pathlib import Path
 from .common import BEST, MODES, pct
 from .grid import grid_cell
 from .soak import report_lines as soak_report
+from .stream_report import report_lines as stream_report
 from .sumo import report_lines as sumo_report
 
 
@@ -174,4 +175,5 @@ def write_readme(out_dir: Path, parts: dict[str, dict], targets: list[dict], met
     L.append('')
     L += sumo_report(parts.get('sumo', {}))
     L += soak_report(parts.get('soak', {}))
+    L += stream_report(parts.get('stream', {}))
     (out_dir / 'README.md').write_text('\n'.join(L) + '\n')
