@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from mlkm_core.associators import make_associator
+from mlkm_core.associators import AssociatorConfig, make_associator
 from mlkm_core.metrics import score
 from mlkm_experiments.bench import common, sumo
 
@@ -32,6 +32,7 @@ def test_quick_sumo_part_through_the_cli(tmp_path, monkeypatch):
     from mlkm_assoc import cli
 
     monkeypatch.setattr(sumo, 'SEEDS_QUICK', {(5, 3): 1})
+    monkeypatch.setattr(sumo, 'EXTRA_QUICK', {('ramps', 'clutter', (5, 3)): 1})
     monkeypatch.setitem(sumo.BUDGET, (5, 3), 120.0)
     monkeypatch.chdir(tmp_path)  # the default --out is results/bench under the cwd
     argv = ['bench', '--quick', '--only', 'sumo', '--methods', 'assignment']
@@ -39,8 +40,12 @@ def test_quick_sumo_part_through_the_cli(tmp_path, monkeypatch):
 
     out = tmp_path / 'results' / 'bench'
     data = json.loads((out / 'sumo.json').read_text())
-    assert [c['scenario'] for c in data['cells']] == list(sumo.SCENARIOS)
+    names = [(c['scenario'], c['measurement']) for c in data['cells']]
+    assert names == [(s, 'default') for s in sumo.SCENARIOS] + [('ramps', 'clutter')]
     for c in data['cells']:
+        # the road's ramps reach the associators: ramps has two on- and two off-ramps
+        ramps = c['scenario'] == 'ramps'
+        assert (len(c['entries']), len(c['exits'])) == ((2, 2) if ramps else (0, 0))
         assert (c['vehicles'], c['stations'], c['seeds']) == (5, 3, [1])
         plain, full = c['variants']['time_speed'], c['variants']['lane_length']
         assert set(plain) == {'assignment', common.PEER} and set(full) == {'assignment'}
@@ -48,10 +53,11 @@ def test_quick_sumo_part_through_the_cli(tmp_path, monkeypatch):
             assert rec['status'] == 'ok' and rec['summary']['n'] == 1
             assert 0.0 <= rec['summary']['accuracy_mean'] <= 1.0
         # the figures are those of the method on the cached dataset, variant by variant
-        path = sumo.DatasetCache(tmp_path / 'cache').path(c['scenario'], 5, 3, 1)
+        path = sumo.DatasetCache(tmp_path / 'cache').path(c['scenario'], 5, 3, 1, c['measurement'])
+        config = AssociatorConfig(entries=c['entries'], exits=c['exits'])
         for variant, rec in (('time_speed', plain), ('lane_length', full)):
             ds = sumo.load(path, variant)
-            labels = make_associator('assignment').associate(
+            labels = make_associator('assignment', config).associate(
                 ds.layout, ds.detections, ds.n_targets
             )
             assert (
@@ -61,6 +67,7 @@ def test_quick_sumo_part_through_the_cli(tmp_path, monkeypatch):
     readme = (out / 'README.md').read_text()
     assert '## SUMO traffic' in readme and '### 5 vehicles, 3 stations' in readme
     assert '| single_lane |' in readme and '`stonesoup`' in readme
+    assert '| ramps (clutter) |' in readme
     assert 'same (time and speed only)' in readme
     assert not (out / 'grid.json').exists()  # only the part asked for ran
 

@@ -10,74 +10,48 @@ so it runs on the first variant alone.
 
 from __future__ import annotations
 
-import pickle
-import tempfile
 import time
 from dataclasses import asdict
 from pathlib import Path
 
-from mlkm_core.associators import make_associator
-from mlkm_core.types import Dataset, Detections
+from mlkm_core.associators import AssociatorConfig, make_associator
+from mlkm_core.types import Dataset
 
 from .common import PEER, Log, pct, run_budgeted, summarise, timed_row
+from .sumo_data import CLUTTER, FALSE_ALARMS_PER_VEHICLE, DatasetCache, load, measurement_config
 
 SCENARIOS = ('single_lane', 'highway', 'congested', 'ramps')
 #: (vehicles, stations) -> datasets per scenario
 SEEDS_FULL = {(50, 20): 3, (200, 50): 2}
 SEEDS_QUICK = {(50, 20): 1}
+#: further cells, (scenario, measurement, (vehicles, stations)) -> datasets: the highway in
+#: clutter and the congested road at 200 x 40
+EXTRA_FULL = {
+    ('highway', 'clutter', (50, 20)): 3,
+    ('highway', 'clutter', (200, 50)): 2,
+    ('congested', 'default', (200, 40)): 2,
+}
+EXTRA_QUICK = {('highway', 'clutter', (50, 20)): 1}
 #: time budget [s] of one (method, cell, variant): all its datasets
-BUDGET = {(50, 20): 120.0, (200, 50): 150.0}
+BUDGET = {(50, 20): 120.0, (200, 40): 150.0, (200, 50): 150.0}
 #: methods run on the larger cells (every method runs on the others)
-LARGE_METHODS = {(200, 50): ('assignment', 'multiframe', 'mlkm_robust', 'mlkm', PEER)}
+LARGE = ('assignment', 'multiframe', 'mlkm_robust', 'mlkm', PEER)
+LARGE_METHODS = {(200, 40): LARGE, (200, 50): LARGE}
 VARIANTS = ('time_speed', 'lane_length')
 VARIANT_LABELS = {'time_speed': 'time, speed', 'lane_length': '+ lane, length'}
 
 
-class DatasetCache:
-    """SUMO datasets generated once per run, pickled under ``root``; SUMO's network files
-    are cached under ``root/networks``."""
-
-    def __init__(self, root: Path) -> None:
-        self.root = Path(root)
-        self.root.mkdir(parents=True, exist_ok=True)
-
-    def path(self, scenario: str, vehicles: int, stations: int, seed: int) -> Path:
-        return self.root / f'{scenario}_{vehicles}x{stations}_seed{seed}.pkl'
-
-    def get(self, scenario: str, vehicles: int, stations: int, seed: int) -> Path:
-        path = self.path(scenario, vehicles, stations, seed)
-        if not path.exists():
-            from mlkm_sumo.api import generate
-
-            ds = generate(scenario, vehicles, stations, seed, cache_dir=self.root / 'networks')
-            plain = Dataset(ds.layout, ds.detections, ds.n_targets)
-            tmp = path.with_suffix('.tmp')
-            tmp.write_bytes(pickle.dumps(plain, protocol=pickle.HIGHEST_PROTOCOL))
-            tmp.replace(path)
-        return path
-
-
-def load(path: Path, variant: str) -> Dataset:
-    """A cached dataset; ``time_speed`` strips lane and length from its detections."""
-    ds: Dataset = pickle.loads(Path(path).read_bytes())
-    if variant == 'time_speed':
-        d = ds.detections
-        ds = Dataset(
-            ds.layout, Detections(d.sensor_index, d.stamp, d.velocity, d.target), ds.n_targets
-        )
-    return ds
-
-
-def sumo_job(method: str, paths: list[Path], variant: str):
-    """Job factory for ``run_budgeted``: load dataset k, associate, score."""
+def sumo_job(
+    method: str, paths: list[Path], variant: str, measurement: str, config: AssociatorConfig
+):
+    """Job factory for ``run_budgeted``: load dataset k, associate, score. The methods get
+    ``config`` (the road's ramps); the peer is told the measurement's noise."""
 
     def make_job():
         if method == PEER:
-            from mlkm_sumo.measurement import MeasurementConfig
-
             from .peer import config_for, stonesoup_associate
 
-            m = MeasurementConfig()  # what generate() measures with
+            m = measurement_config(measurement)
 
             def assoc(d: Dataset):
                 cfg = config_for(d.layout, d.detections)
@@ -85,7 +59,7 @@ def sumo_job(method: str, paths: list[Path], variant: str):
                     d.layout, d.detections, m.stamp_jitter, m.speed_noise, cfg
                 )
         else:
-            a = make_associator(method)
+            a = make_associator(method, config)
 
             def assoc(d: Dataset):
                 return a.associate(d.layout, d.detections, d.n_targets)
@@ -95,17 +69,30 @@ def sumo_job(method: str, paths: list[Path], variant: str):
     return make_job
 
 
-def run_sumo(methods: list[str], seeds_per_cell: dict, log: Log, cache_dir: Path | None = None):
-    """Every method (and the peer when Stone Soup is installed) on every scenario and cell."""
-    from mlkm_sumo.measurement import MeasurementConfig
+def run_sumo(
+    methods: list[str],
+    seeds_per_cell: dict,
+    log: Log,
+    cache_dir: Path | None = None,
+    extra: dict | None = None,
+):
+    """Every method (and the peer when Stone Soup is installed) on every scenario and cell,
+    then on the ``extra`` cells (default: ``EXTRA_FULL`` with ``SEEDS_FULL``, else
+    ``EXTRA_QUICK``)."""
+    import tempfile
 
     from .peer import PeerConfig, stonesoup_version
 
+    if extra is None:
+        extra = EXTRA_FULL if seeds_per_cell == SEEDS_FULL else EXTRA_QUICK
+    cases = [(sc, 'default', cell, n) for cell, n in seeds_per_cell.items() for sc in SCENARIOS]
+    cases += [(sc, meas, cell, n) for (sc, meas, cell), n in extra.items()]
     version = stonesoup_version()
     out: dict = {
         'scenarios': list(SCENARIOS),
-        'budget_s': {f'{a}x{b}': BUDGET[(a, b)] for a, b in seeds_per_cell},
-        'measurement': asdict(MeasurementConfig()),
+        'budget_s': {f'{a}x{b}': BUDGET[(a, b)] for a, b in sorted({c[2] for c in cases})},
+        'measurement': asdict(measurement_config('default')),
+        'clutter': {**CLUTTER, 'false_alarms_per_vehicle_per_station': FALSE_ALARMS_PER_VEHICLE},
         'peer': {
             'stonesoup_version': version,
             'config': asdict(PeerConfig()),
@@ -117,20 +104,25 @@ def run_sumo(methods: list[str], seeds_per_cell: dict, log: Log, cache_dir: Path
         log('sumo: stonesoup is not installed (make setup installs it); peer left out')
     with tempfile.TemporaryDirectory(prefix='mlkm_bench_sumo_') as tmp:
         cache = DatasetCache(cache_dir or Path(tmp))
-        for cell, n in seeds_per_cell.items():
+        for scenario, measurement, cell, n in cases:
             cell_methods = [m for m in methods if m in LARGE_METHODS.get(cell, methods)]
             if version is not None and PEER in LARGE_METHODS.get(cell, (PEER,)):
                 cell_methods.append(PEER)
-            for scenario in SCENARIOS:
-                out['cells'].append(_run_cell(scenario, cell, n, cell_methods, cache, log))
+            out['cells'].append(
+                _run_cell(scenario, measurement, cell, n, cell_methods, cache, log)
+            )
     return out
 
 
-def _run_cell(scenario: str, cell: tuple[int, int], n: int, methods, cache, log: Log) -> dict:
+def _run_cell(
+    scenario: str, measurement: str, cell: tuple[int, int], n: int, methods, cache, log: Log
+) -> dict:
     vehicles, stations = cell
     seeds = list(range(1, n + 1))
+    name = scenario if measurement == 'default' else f'{scenario} ({measurement})'
     entry: dict = {
         'scenario': scenario,
+        'measurement': measurement,
         'vehicles': vehicles,
         'stations': stations,
         'seeds': seeds,
@@ -138,23 +130,33 @@ def _run_cell(scenario: str, cell: tuple[int, int], n: int, methods, cache, log:
     }
     t0 = time.monotonic()
     try:
-        paths = [cache.get(scenario, vehicles, stations, s) for s in seeds]
+        paths = [cache.get(scenario, vehicles, stations, s, measurement) for s in seeds]
+        roads = [cache.ramps(scenario, stations, s) for s in seeds]
     except Exception as exc:  # SumoError, a failing netconvert: the cell is reported as such
         entry['error'] = f'{type(exc).__name__}: {exc}'
-        log(f'sumo {scenario} {vehicles}x{stations}: datasets failed: {entry["error"]}')
+        log(f'sumo {name} {vehicles}x{stations}: datasets failed: {entry["error"]}')
         return entry
-    sizes = [len(load(p, 'time_speed').detections) for p in paths]
-    entry['detections_mean'] = sum(sizes) / len(sizes)
+    entries, exits = roads[0][0], roads[0][1]  # the ramps are the scenario's, not the seed's
+    for p, (_, _, positions) in zip(paths, roads):
+        if list(load(p, 'time_speed').layout.positions) != list(positions):
+            raise RuntimeError(f'{p}: stations differ from the road of its seed')
+    entry['entries'], entry['exits'] = list(entries), list(exits)
+    config = AssociatorConfig(entries=entries, exits=exits)
+    sets = [load(p, 'time_speed').detections for p in paths]
+    entry['detections_mean'] = sum(len(d) for d in sets) / len(sets)
+    entry['false_alarms_mean'] = sum(int((d.target < 0).sum()) for d in sets) / len(sets)
     log(
-        f'sumo {scenario} {vehicles}x{stations}: {n} datasets, '
-        f'{entry["detections_mean"]:.0f} detections each ({time.monotonic() - t0:.1f} s)'
+        f'sumo {name} {vehicles}x{stations}: {n} datasets, '
+        f'{entry["detections_mean"]:.0f} detections each, ramps {entries} / {exits} '
+        f'({time.monotonic() - t0:.1f} s)'
     )
     for variant in VARIANTS:
         for m in methods:
             if m == PEER and variant != 'time_speed':
                 continue
             t1 = time.monotonic()
-            rows, status = run_budgeted(sumo_job(m, paths, variant), n, BUDGET[cell])
+            job = sumo_job(m, paths, variant, measurement, config)
+            rows, status = run_budgeted(job, n, BUDGET[cell])
             entry['variants'][variant][m] = {
                 'summary': summarise(rows),
                 'status': status,
@@ -162,11 +164,22 @@ def _run_cell(scenario: str, cell: tuple[int, int], n: int, methods, cache, log:
             }
             s = entry['variants'][variant][m]['summary']
             log(
-                f'sumo {scenario:11s} {vehicles}x{stations} {variant:11s} {m:12s} '
+                f'sumo {name:19s} {vehicles}x{stations} {variant:11s} {m:12s} '
                 f'{s.get("accuracy_mean", float("nan")) * 100:7.3f}% n={s["n"]} {status} '
                 f'({time.monotonic() - t1:.1f} s)'
             )
     return entry
+
+
+def find_cell(
+    sumo: dict, scenario: str, vehicles: int, stations: int, measurement: str = 'default'
+) -> dict | None:
+    """The cell of ``sumo.json`` with these keys (``measurement`` 'default' when absent)."""
+    for c in sumo.get('cells', []):
+        key = (c['scenario'], c['vehicles'], c['stations'], c.get('measurement', 'default'))
+        if key == (scenario, vehicles, stations, measurement) and 'error' not in c:
+            return c
+    return None
 
 
 def _cell_text(rec: dict | None, n: int) -> str:
@@ -193,8 +206,12 @@ def report_lines(sumo: dict) -> list[str]:
     L += [
         'Datasets from `mlkm_sumo.api.generate(scenario, vehicles, stations, seed)` (seeds '
         '1, 2, ...; default measurement: no noise, lane-change double reports kept as false '
-        'alarms). Every method sees each dataset with (time, speed) only and again with lane '
-        'and vehicle length added; cells are mean accuracy [%] (min..max) and seconds per '
+        'alarms). Rows marked (clutter) add 5 % missed passages, 0.2 s stamp jitter and 0.05 '
+        "false alarms per vehicle per station (the same count as the simulator's clutter "
+        "mode; no speed or length noise, the measurement model's default). Every method is "
+        "told the road's on- and off-ramp positions (`AssociatorConfig.entries` / `exits`; "
+        'only `ramps` has any) and sees each dataset with (time, speed) only and again with '
+        'lane and vehicle length added; cells are mean accuracy [%] (min..max) and seconds per '
         'dataset. Time budget per (method, cell, variant): '
         + ', '.join(f'{k}: {v:.0f} s' for k, v in sumo.get('budget_s', {}).items())
         + f'. `{PEER}` is Stone Soup {peer.get("stonesoup_version") or "(not installed)"}, '
@@ -222,8 +239,11 @@ def report_lines(sumo: dict) -> list[str]:
                 continue
             n = len(c['seeds'])
             det = f'{c["detections_mean"]:.0f} (n={n})'
+            name = c['scenario']
+            if c.get('measurement', 'default') != 'default':
+                name += f' ({c["measurement"]})'
             for m in c['variants']['time_speed']:
-                row = [c['scenario'], det, f'`{m}`']
+                row = [name, det, f'`{m}`']
                 for v in VARIANTS:
                     rec = c['variants'][v].get(m)
                     row.append('same (time and speed only)' if rec is None else _cell_text(rec, n))
