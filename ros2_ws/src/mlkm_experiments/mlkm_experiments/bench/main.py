@@ -12,14 +12,14 @@ from pathlib import Path
 
 from mlkm_core.associators import available_methods
 
-from . import cost, grid, peer, soak, sumo
-from .plots import plot_all
+from . import cost, grid, peer, soak, stream, sumo
+from .plots import plot_all, plot_stream
 from .report import write_readme
 from .targets import evaluate_targets
 
 #: Parts in the order they run: the ones that fork child processes come before the ones that
 #: start DDS participants in this process (soak).
-PARTS = ('grid', 'peer', 'cost', 'sumo', 'live', 'soak')
+PARTS = ('grid', 'peer', 'cost', 'sumo', 'live', 'soak', 'stream')
 
 
 def _run_live(out_dir: Path, log) -> dict:
@@ -106,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         'soak': lambda: soak.run_soak(
             log, episodes=soak.QUICK_EPISODES if quick else soak.EPISODES
         ),
+        'stream': lambda: stream.run_stream(log, quick, args.cache_dir),
     }
     log(f'parts: {", ".join(parts)}; methods: {", ".join(methods)}')
     failed = []
@@ -136,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     save('summary', {'meta': meta, 'targets': targets})
     plot_all(out_dir, results['grid'], results['cost'])
     soak.plot(out_dir, results['soak'])
+    plot_stream(out_dir, results['stream'])
     write_readme(out_dir, results, targets, meta)
     for t in targets:
         log(f'target: {t["target"]}: {t["met"]} ({t["value"]})')

@@ -116,4 +116,71 @@ def evaluate_targets(results: dict[str, dict]) -> list[dict]:
     )
     out.append(grid_reference_target(grid, results.get('grid_reference', {})))
     out += sumo_targets(results.get('sumo', {}))
+    out += stream_targets(results.get('stream', {}))
+    return out
+
+
+def stream_targets(stream: dict) -> list[dict]:
+    """The stream part's targets (latency, memory, throughput, accuracy against the lag)."""
+    out = []
+    why = stream.get('status', 'not run')
+
+    def check(name: str, ok: bool | None, value: str) -> None:
+        out.append({'target': name, 'met': ok, 'value': value})
+
+    for name, r in (stream.get('latency') or {}).items():
+        if 'latency_p95' not in r:
+            check(f'stream: p95 latency <= 50 ms at {name}', None, r.get('status', why))
+            continue
+        ms = ', '.join(
+            f'{q} {1000 * r[f"latency_{q}"]:.1f} ms'
+            for q in ('p50', 'p95', 'p99')
+            if r[f'latency_{q}'] is not None
+        )
+        rate = r.get('delivered_rate')
+        check(
+            f'stream: p95 latency <= 50 ms at {name}',
+            r.get('ok'),
+            ms + ('' if rate is None else f' (delivered {rate:.0f} det/s)'),
+        )
+    if not stream.get('latency'):
+        check('stream: p95 latency <= 50 ms', None, why)
+    mem = stream.get('memory') or {}
+    g = (mem.get('rss_total') or {}).get('growth')
+    check(
+        'stream: RSS over the last sixth within 10 % of the second sixth (SUMO highway)',
+        mem.get('rss_ok'),
+        mem.get('status', why)
+        if g is None
+        else f'{100 * g:+.1f} % over {mem["duration"] / 60:.0f} simulated min',
+    )
+    c = mem.get('counts')
+    check(
+        'stream: no detection lost (SUMO highway)',
+        mem.get('nothing_lost'),
+        mem.get('status', why)
+        if c is None
+        else f'{c["received"]} of {c["source_published"]} received, {c["rejected"]} rejected, '
+        f'{c["pushed"]} through the tracker, working set {c["working_set"]} at the end',
+    )
+    tp = stream.get('throughput') or {}
+    ratio = tp.get('ratio')
+    check(
+        'stream: >= 70% of bare subscriber ingest',
+        None if ratio is None else ratio >= 0.7,
+        tp.get('status', why)
+        if ratio is None
+        else f'{ratio:.2f} ({tp["association_rate"]:.0f} vs {tp["bare_rate"]:.0f} det/s)',
+    )
+    lag = stream.get('lag') or {}
+    for fam, r in (lag.get('families') or {}).items():
+        d = lag['default_lag']
+        check(
+            f'stream: {fam} accuracy at lag {d:g} s within 0.5 points of batch',
+            r['ok'],
+            f'{100 * r["stream"][str(d)]:.2f} % vs {100 * r["batch"]:.2f} % '
+            f'({-r["loss_points"]:+.2f})',
+        )
+    if not lag.get('families'):
+        check('stream: accuracy at the default lag within 0.5 points of batch', None, why)
     return out
