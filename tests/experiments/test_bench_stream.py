@@ -11,9 +11,9 @@ MIB = 2**20
 
 
 def rss_run(node_mib, tracker_mib):
-    """One RSS sample per simulated minute 0..len-1 (stamps start at 1000 s)."""
+    """One RSS sample per 50 detections received, 600 in all (the last sample at 550)."""
     return [
-        {'t': float(i), 'newest': 1000.0 + 60.0 * i, 'node': n * MIB, 'tracker': k * MIB}
+        {'t': float(i), 'received': 50 * i, 'node': n * MIB, 'tracker': k * MIB}
         for i, (n, k) in enumerate(zip(node_mib, tracker_mib, strict=True))
     ]
 

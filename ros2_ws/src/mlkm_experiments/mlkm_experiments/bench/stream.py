@@ -13,11 +13,13 @@ Real executables over loopback DDS in a domain of their own; ``association_node`
    measured from the node's ``received`` counter.
 2. **Memory** (``memory``): ``sumo_sensors`` continuous on SUMO ``highway`` (3,000
    vehicles/h, 20 stations) at real_time_factor 0. The resident set (VmRSS) of the node and of
-   its tracker process is sampled against the simulated time the node has reached; the part
-   passes when the median over the last sixth of the run is at most 10 % above the median over
-   the second sixth (after the warm-up), and when nothing is lost: the node received every
-   detection the source published, each accepted or counted as rejected, every accepted one
-   pushed through the tracker and, after the quiet-road flush, none left in its working set.
+   its tracker process is sampled every second; the part passes when the median over the last
+   sixth of the run is at most 10 % above the median over the second sixth (after the
+   warm-up; the run's progress is the share of its detections the node has received,
+   proportional to simulated time at the scenario's constant demand), and when nothing is
+   lost: the node received every detection the source published, each accepted or counted as
+   rejected, every accepted one pushed through the tracker and, after the quiet-road flush,
+   none left in its working set.
    A 10-minute probe runs first; the simulated hour runs when the probe extrapolates to at
    most ``HOUR_BUDGET`` of wall time, else the probe is the measurement.
 3. **Throughput** (``throughput``): ``sensor_sim`` continuous at real_time_factor 0 into a
@@ -41,7 +43,7 @@ from pathlib import Path
 
 from .common import Log
 from .soak import rss_growth, vm_rss
-from .stream_lag import run_lag
+from .stream_lag import SIM_SEEDS, SUMO_SEEDS, run_lag
 
 SENSORS = 20
 #: name -> (arrival_rate [vehicles/s], real_time_factor, duration [s]): 20 x rate x rtf det/s
@@ -129,11 +131,13 @@ def run_graph(
     source: tuple[str, ...],
     flush: bool = False,
     rss: bool = False,
+    drain: bool = True,
     timeout: float = 600.0,
 ) -> dict:
     """The association node in stream mode fed by ``source`` until the source is done and
     every accepted detection went through the tracker (with ``flush``: until the quiet road
-    was flushed and the working set is empty). Returns the node's last /diagnostics values,
+    was flushed and the working set is empty; without ``drain``: until nothing arrived for
+    2 s). Returns the node's last /diagnostics values,
     the diagnostics samples, the RSS samples and what the source says it published."""
     from mlkm_experiments.launch import Graph, ScoreCollector
     from mlkm_ros.conversions import diagnostics_values
@@ -175,10 +179,12 @@ def run_graph(
                 now = time.monotonic()
                 if rss and now >= due:
                     due += SAMPLE_PERIOD
-                    newest = samples[-1]['newest'] if samples else None
-                    rss_samples.append({'t': now - t0, 'newest': newest, **tree_rss(node.pid)})
+                    got = samples[-1]['received'] if samples else 0
+                    rss_samples.append({'t': now - t0, 'received': got, **tree_rss(node.pid)})
                 if src.poll() is None or not state:
                     return False
+                if not drain:
+                    return float(state.get('stream.idle') or 0.0) > 2.0
                 accepted = int(state.get('accepted', 0))
                 through = int(state.get('stream.pushed') or 0) >= accepted
                 return through and (not flush or state.get('stream.working_set') == '0')
@@ -203,14 +209,10 @@ def run_graph(
 def _sample(msg, values: dict[str, str]) -> dict:
     t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
     idle = values.get('stream.idle') or None
-    newest = None
-    if values.get('stream.committed_until'):
-        newest = float(values['stream.committed_until']) + float(values['stream.commit_lag'])
     return {
         't': t,
         'received': int(values.get('received', 0)),
         'idle': None if idle is None else float(idle),
-        'newest': newest,
     }
 
 
@@ -248,19 +250,19 @@ def latency_ok(p95: float | None, limit: float = LATENCY_P95_MAX) -> bool | None
 
 
 def memory_verdict(rss_samples: list[dict], values: dict, published: int | None) -> dict:
-    """RSS growth (node + tracker process, over simulated-time progress) and nothing lost."""
-    pts = [s for s in rss_samples if s['newest'] is not None and s['node'] is not None]
+    """RSS growth (node + tracker process) over the run's progress, the share of the
+    detections the node had received (constant demand: proportional to simulated time), and
+    nothing lost."""
+    final = int(values.get('received', 0))
+    pts = [s for s in rss_samples if s['node'] is not None]
     out: dict = {}
-    if pts:
-        t0 = pts[0]['newest']
-        span = max(s['newest'] for s in pts) - t0
-        prog = [(s['newest'] - t0) / span if span > 0 else 0.0 for s in pts]
+    if pts and final > 0:
+        prog = [s['received'] / final for s in pts]
         total = [s['node'] + (s['tracker'] or 0) for s in pts]
         out['rss_total'] = rss_growth(prog, total, RSS_WINDOW, GROWTH_LIMIT)
         out['rss_node'] = rss_growth(prog, [s['node'] for s in pts], RSS_WINDOW, GROWTH_LIMIT)
         trk = [(p, s['tracker']) for p, s in zip(prog, pts, strict=True) if s['tracker']]
         out['rss_tracker'] = rss_growth(*zip(*trk), RSS_WINDOW, GROWTH_LIMIT) if trk else None
-        out['simulated_span_s'] = span
     received, accepted = int(values.get('received', 0)), int(values.get('accepted', 0))
     rejected = int(values.get('rejected', 0))
     out['counts'] = {
@@ -325,7 +327,9 @@ def run_throughput(domain_id: int, log_dir: Path) -> dict:
             if not lines:
                 raise RuntimeError(f'bare subscriber printed no result; log {bare.log_path}')
             bares.append(json.loads(lines[-1]))
-        r = run_graph(domain_id, log_dir / f'assoc{i}', sim_source(*THROUGHPUT_SOURCE))
+        r = run_graph(
+            domain_id, log_dir / f'assoc{i}', sim_source(*THROUGHPUT_SOURCE), drain=False
+        )
         assocs.append(
             {'ingest_rate': ingest_rate(r['samples']), 'received': r['values']['received']}
         )
@@ -348,31 +352,49 @@ def run_stream(log: Log, quick: bool = False, cache_dir: Path | None = None) -> 
 
     log_dir = Path(tempfile.mkdtemp(prefix='mlkm_bench_stream_'))
     out: dict = {'logs': str(log_dir), 'load_average_1min_start': os.getloadavg()[0]}
-    t = time.monotonic()
-    out['lag'] = run_lag(
-        log,
-        cache_dir,
-        sim_seeds=(0, 1) if quick else (0, 1, 2, 3),
-        sumo_seeds=(1,) if quick else (1, 2),
-    )
-    out['lag']['wall_s'] = time.monotonic() - t
     with domain() as domain_id:
         for name, fn in (
             ('latency', lambda: run_latency(domain_id, log_dir)),
             ('throughput', lambda: run_throughput(domain_id, log_dir)),
             ('memory', lambda: run_memory(domain_id, log_dir, log, quick)),
+            (
+                'lag',
+                lambda: run_lag(
+                    log,
+                    cache_dir,
+                    sim_seeds=(0, 1) if quick else SIM_SEEDS,
+                    sumo_seeds=(1,) if quick else SUMO_SEEDS,
+                ),
+            ),
         ):
             t = time.monotonic()
             try:
                 out[name] = fn()
-            except RuntimeError as exc:
+            except Exception as exc:  # noqa: BLE001 - one broken measurement keeps the others
                 out[name] = {'status': f'failed: {exc}'}
-            if isinstance(out[name], dict):
-                out[name].setdefault('wall', time.monotonic() - t)
-            log(f'stream {name}: {time.monotonic() - t:.0f} s')
+            out.setdefault('runs', {})[name] = {
+                'wall_s': time.monotonic() - t,
+                'load_average_1min': os.getloadavg()[0],
+            }
+            log(f'stream {name}: {time.monotonic() - t:.0f} s: {_brief(name, out[name])}')
     out['load_average_1min_end'] = os.getloadavg()[0]
     out['status'] = 'ok'
     return out
+
+
+def _brief(name: str, r: dict) -> str:
+    if 'status' in r and r['status'] != 'ok':
+        return r['status']
+    if name == 'latency':
+        return '; '.join(
+            f'{k}: p50/p95/p99 {v["latency_p50"]}/{v["latency_p95"]}/{v["latency_p99"]} s'
+            for k, v in r.items()
+        )
+    if name == 'throughput':
+        return f'ratio {r["ratio"]:.2f}'
+    if name == 'memory':
+        return f'rss {r.get("rss_total")}, nothing lost {r["nothing_lost"]}'
+    return ', '.join(f'{f}: ok {v["ok"]}' for f, v in r.get('families', {}).items())
 
 
 def bare_subscriber(idle: float = 3.0) -> int:

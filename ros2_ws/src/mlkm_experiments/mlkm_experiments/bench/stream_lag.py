@@ -19,8 +19,10 @@ import numpy as np
 
 from .common import BEST, CLUTTER, Log
 
-LAGS = (5.0, 10.0, 15.0, 20.0, 30.0, 60.0)
-SIM_SEEDS = (0, 1, 2, 3)
+LAGS = (5.0, 10.0, 15.0, 30.0, 60.0)
+SIM_SEEDS = (0, 1, 2)
+#: Wall-time budget per dataset family [s]: the datasets not started by then are left out.
+BUDGET = 420.0
 SUMO_SEEDS = (1, 2)
 SUMO_CELL = ('highway', 200, 20)
 #: Largest allowed accuracy loss of the stream at the default lag against batch [points].
@@ -86,6 +88,7 @@ def run_lag(
     sim_seeds=SIM_SEEDS,
     sumo_seeds=SUMO_SEEDS,
     default_lag: float | None = None,
+    budget: float = BUDGET,
 ) -> dict:
     """Accuracy of batch and of the stream at each lag, per dataset family."""
     from mlkm_core.associators import make_associator
@@ -100,15 +103,24 @@ def run_lag(
             continue
         batch, stream = [], {lag: [] for lag in lags}
         t0 = time.monotonic()
+        done = 0
         for ds in sets:
+            if time.monotonic() - t0 > budget:
+                break
+            done += 1
             d = ds.detections
             b = make_associator(BEST).associate(ds.layout, d, ds.n_targets)
             batch.append(accuracy(b, d.target).accuracy)
             for lag in lags:
                 stream[lag].append(accuracy(stream_labels(ds, lag), d.target).accuracy)
+        if not done:
+            continue
         rec = {
-            'datasets': len(sets),
-            'detections_mean': float(np.mean([len(ds.detections.stamp) for ds in sets])),
+            'datasets': done,
+            'status': 'ok'
+            if done == len(sets)
+            else f'{done} of {len(sets)} datasets within the {budget:.0f} s budget',
+            'detections_mean': float(np.mean([len(ds.detections.stamp) for ds in sets[:done]])),
             'batch': float(np.mean(batch)),
             'batch_runs': [float(x) for x in batch],
             'stream': {str(lag): float(np.mean(v)) for lag, v in stream.items()},

@@ -74,9 +74,10 @@ def report_lines(stream: dict) -> list[str]:
             f'{mem["scenario"]}, {mem["duration"] / 60:.0f} simulated minutes in '
             f'{mem["wall_s"] / 60:.1f} min wall (a {p["duration"] / 60:.0f}-minute probe took '
             f'{p["wall_s"]:.0f} s: an hour extrapolates to {p["hour_estimate_s"] / 60:.1f} '
-            'min). VmRSS of the node and of its tracker process sampled every second against '
-            'the simulated time the node has reached; early: median over the second sixth, '
-            'late: median over the last sixth; passes at a growth <= 10 %.',
+            'min). VmRSS of the node and of its tracker process sampled every second; progress '
+            '= the share of the detections the node has received (constant demand); early: '
+            'median over the second sixth, late: median over the last sixth; passes at a '
+            'growth <= 10 %.',
             '',
             '| process | RSS early [MiB] | RSS late [MiB] | growth |',
             '| --- | --- | --- | --- |',
