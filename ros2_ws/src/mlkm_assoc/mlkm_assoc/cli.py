@@ -1,13 +1,15 @@
 """``mlkm``: the offline command line (``associate``, ``paper``, ``sumo``, ``bench``).
 
 ``mlkm associate --input detections.csv --output tracks.csv [--method M] [--segment-size K]
-[--targets N] [--seed S] [--skip-invalid] [--progress]`` reads detections (the format is
-described in ``mlkm_core.csvio``), associates them and writes the same rows with a
-``track_id`` column (-1 = unassigned). With ground truth it prints the accuracy and the other
-metrics. A malformed file, or one with invalid rows (values outside --min-speed/--max-speed/
---min-stamp/--max-stamp, duplicates), is refused with a message naming the lines, exit code
-2, and nothing is written; ``--skip-invalid`` associates the valid rows instead and writes the
-invalid ones with track -1 and their reason in a ``rejected`` column.
+[--targets N] [--seed S] [--entries X,..] [--exits X,..] [--skip-invalid] [--progress]``
+reads detections (the format is described in ``mlkm_core.csvio``), associates them and writes
+the same rows with a ``track_id`` column (-1 = unassigned). ``--entries`` / ``--exits`` are
+the positions [m] of on- and off-ramps (``AssociatorConfig.entries`` / ``exits``). With ground
+truth it prints the accuracy and the other metrics. A malformed file, or one with invalid
+rows (values outside --min-speed/--max-speed/--min-stamp/--max-stamp, duplicates), is refused
+with a message naming the lines, exit code 2, and nothing is written; ``--skip-invalid``
+associates the valid rows instead and writes the invalid ones with track -1 and their reason
+in a ``rejected`` column.
 
 ``--stream [--lag S] [--entries X,..] [--exits X,..]`` associates as the live node does on
 an open road: the rows are pushed in stamp order through ``mlkm_core.streaming`` (any
@@ -119,9 +121,10 @@ def cmd_associate(args: argparse.Namespace) -> int:
     if problem:
         return _error(problem)
     try:
-        associator = make_associator(
-            args.method, AssociatorConfig(segment_size=args.segment_size, seed=args.seed)
+        config = AssociatorConfig(
+            segment_size=args.segment_size, seed=args.seed, entries=args.entries, exits=args.exits
         )
+        associator = make_associator(args.method, config)
         stream = _stream_config(args) if args.stream else None
     except ValueError as exc:
         return _error(str(exc))
@@ -345,7 +348,8 @@ def build_parser() -> argparse.ArgumentParser:
             flag,
             type=_positions,
             default=(),
-            help=f'with --stream: positions [m] of {what} between stations, comma-separated',
+            help=f'positions [m] of {what} between stations, comma-separated (an open road: '
+            'the batch associators and --stream use them)',
         )
     a.set_defaults(func=cmd_associate)
     p = sub.add_parser('paper', help="reproduce the paper's experiments")
