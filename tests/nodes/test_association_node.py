@@ -159,7 +159,7 @@ def test_known_association_with_every_bad_input(harness) -> None:
     h.wait(lambda: h.node.assembler.layout is not None)
     start, end = window(0.0)
     h.episode_pub.publish(conv.episode_started_msg(0, 3, start, end, 0))
-    h.wait(lambda: 0 in h.node.assembler._infos)
+    h.wait(lambda: h.node.assembler.knows_episode(0))
 
     # Sensor c (index 2) receives target 1 before target 0: a stamp out of order.
     rest = valid[1:]
@@ -241,7 +241,7 @@ def test_partial_tracks_segment_by_segment_with_stable_ids(harness) -> None:
     h.wait_matched()
     start, end = window(0.0)
     h.episode_pub.publish(conv.episode_started_msg(0, 3, start, end, 0))
-    h.wait(lambda: 0 in h.node.assembler._infos)
+    h.wait(lambda: h.node.assembler.knows_episode(0))
     for s, ns, v, _ in sorted(passages(), key=lambda p: p[1]):
         h.detect(s, ns, v)
     # Paper mode: each sensor's segment completes at num_targets detections, before ENDED.
