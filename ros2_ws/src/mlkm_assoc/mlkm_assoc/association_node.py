@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 from collections import deque
+from dataclasses import replace
 from typing import Any
 
 import rclpy
@@ -30,6 +31,7 @@ from mlkm_assoc.association_params import BOUND_NAMES, NODE_PARAMS, SPECS, STREA
 from mlkm_assoc.encoding import Update, encode
 from mlkm_assoc.modes import ModeSwitch
 from mlkm_assoc.solver import SolverProcess
+from mlkm_core.associators.base import AssociatorConfig
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
 from mlkm_ros.params import ParameterError, declare_parameters
@@ -139,6 +141,8 @@ class AssociationNode(Node):
             layout = conv.layout_from_msg(msg)
             lane_counts = conv.lane_counts_from_msg(msg)
             wanted = {self.resolve_topic_name(qos.detections_topic(n)) for n in layout.names}
+            entries, exits = conv.layout_ramps(msg)
+            AssociatorConfig(entries=entries, exits=exits)  # finite positions
         except Exception as exc:  # noqa: BLE001 - invalid values or sensor names
             self._assembler.rejected['invalid_layout'] += 1
             self.get_logger().error(
@@ -146,6 +150,10 @@ class AssociationNode(Node):
                 throttle_duration_sec=2.0,
             )
             return
+        if (entries, exits) != (self._config.entries, self._config.exits):
+            # the episodes that begin from now on associate on the layout's open road
+            self._config = replace(self._config, entries=entries, exits=exits)
+            self._assembler.config = self._config
         runs = self._assembler.runs
         published_ns = conv.time_to_ns(msg.header.stamp)
         if not self._assembler.set_layout(layout, time.monotonic(), published_ns, lane_counts):

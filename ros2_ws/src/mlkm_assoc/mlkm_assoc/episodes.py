@@ -34,9 +34,15 @@ class AssociationConfig:
     max_stamp: float = _DEFAULT_BOUNDS.max_stamp  # [s]
     min_length: float = _DEFAULT_BOUNDS.min_length  # [m]
     max_length: float = _DEFAULT_BOUNDS.max_length  # [m]
+    # on- and off-ramp positions [m] of the current layout (its entry_positions and
+    # exit_positions, not parameters): an open road for the associators
+    entries: tuple[float, ...] = ()
+    exits: tuple[float, ...] = ()
 
     def associator_config(self) -> AssociatorConfig:
-        return AssociatorConfig(segment_size=self.segment_size, seed=self.seed)
+        return AssociatorConfig(
+            segment_size=self.segment_size, seed=self.seed, entries=self.entries, exits=self.exits
+        )
 
     def bounds(self) -> Bounds:
         """The physical bounds of a detection; raises ValueError when they contradict."""
