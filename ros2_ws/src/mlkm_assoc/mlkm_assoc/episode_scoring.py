@@ -1,0 +1,359 @@
+"""The scorer's episodes mode: each episode's final tracks against its ground truth.
+
+The FINAL TrackArray of an episode is joined with its GroundTruth messages on (sensor id,
+lane, stamp in integer ns; lane -1 where unknown) and scored with the core's one scoring
+function, ``mlkm_core.metrics.score``; the policies (complete truth, runs, memory) are those
+of :mod:`mlkm_assoc.scorer_node`, which feeds every message the stream mode
+(:mod:`mlkm_assoc.stream_scoring`) did not take in here.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter, OrderedDict
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mlkm_core.metrics import score
+from mlkm_core.types import Detections
+from mlkm_ros import conversions as conv
+from road_sensor_msgs.msg import EpisodeInfo, GroundTruth, TrackArray
+
+NS_PER_S = conv.NS_PER_S
+Key = tuple[int, int, int]  # (sensor id, stamp ns, lane): the join key
+Window = tuple[int, int, int]  # (num_targets, start ns, end ns) of an EpisodeInfo
+
+
+@dataclass(frozen=True)
+class ScorerConfig:
+    """The scorer's episodes-mode settings (node parameters of the same names)."""
+
+    truth_timeout: float = 10.0  # [s]
+    forget_after: float = 300.0  # [s]
+    max_open_episodes: int = 100  # [episodes]
+    max_scored_episodes: int = 1000  # [episodes]
+    max_buffered_truth: int = 1_000_000  # [messages]
+
+
+@dataclass
+class _Episode:
+    """One unscored episode of the current run."""
+
+    last_rx: float  # monotonic time of its last input [s]
+    window: Window | None = None
+    started_ns: int | None = None  # publication stamp of its STARTED
+    counts: dict[int, int] | None = None  # ENDED: {sensor id: detections published}
+    truth: dict[Key, tuple[int, float]] = field(default_factory=dict)  # -> (target, true v)
+    final: TrackArray | None = None
+    final_rx: float = 0.0
+
+    def inside(self, stamp_ns: int) -> bool:
+        return self.window is None or self.window[1] <= stamp_ns <= self.window[2]
+
+
+@dataclass(frozen=True)
+class _Scored:
+    window: Window | None
+    started_ns: int | None
+
+
+def valid_stamp_ns(stamp) -> int:
+    """A message time in integer ns; ValueError when it is negative or malformed."""
+    if stamp.sec < 0 or stamp.nanosec >= NS_PER_S:
+        raise ValueError(f'invalid time {stamp.sec} s {stamp.nanosec} ns')
+    return conv.time_to_ns(stamp)
+
+
+def _check_tracks(msg: TrackArray) -> list[int]:
+    """Stamps [ns] of every detection in the tracks; ValueError when arrays disagree."""
+    stamps = []
+    for track in msg.tracks:
+        n = len(track.sensor_ids)
+        if not (len(track.stamps) == len(track.velocities) == len(track.positions) == n):
+            raise ValueError(f'track {track.track_id}: parallel arrays differ in length')
+        stamps.extend(valid_stamp_ns(t) for t in track.stamps)
+    n = len(msg.unassigned_sensor_ids)
+    if not (len(msg.unassigned_stamps) == len(msg.unassigned_velocities) == n):
+        raise ValueError('unassigned_* arrays differ in length')
+    stamps.extend(valid_stamp_ns(t) for t in msg.unassigned_stamps)
+    conv.track_lanes_from_msg(msg)  # lanes/lengths empty or parallel to sensor_ids
+    return stamps
+
+
+class EpisodeScoring:
+    """Open and scored episodes of the current run, the running mean and the counts.
+
+    ``node`` gives the logger and the clock, ``score_pub`` takes the AssociationScore
+    messages, ``sensor_index`` maps a sensor id to its index in road order and ``reject``
+    counts and logs a refused input (reason, detail)."""
+
+    def __init__(
+        self,
+        node,
+        score_pub,
+        config: ScorerConfig,
+        sensor_index: Callable[[int], int],
+        reject: Callable[[str, str], None],
+    ) -> None:
+        self._node = node
+        self._score_pub = score_pub
+        self.config = config
+        self._sensor_index = sensor_index
+        self._reject = reject
+        self._open: dict[int, _Episode] = {}  # unscored episodes, by id
+        self._scored: OrderedDict[int, _Scored] = OrderedDict()  # oldest first
+        self._buffered = 0  # truth messages held in self._open
+        self.sum = 0.0  # accuracies in the mean
+        self.in_mean = 0
+        self.incomplete = 0
+        self.events: Counter[str] = Counter()
+
+    def diagnostics(self) -> dict[str, object]:
+        return {
+            'episodes_scored': self.in_mean,
+            'episodes_incomplete': self.incomplete,
+            'mean_accuracy': self.sum / self.in_mean if self.in_mean else math.nan,
+            'open_episodes': len(self._open),
+            'buffered_truth': self._buffered,
+            'remembered_scored': len(self._scored),
+        }
+
+    # --- inputs ---------------------------------------------------------------------------
+    def on_episode(self, msg: EpisodeInfo) -> None:
+        """An EpisodeInfo (the stream mode saw it already)."""
+        try:
+            info = conv.episode_from_msg(msg)
+        except ValueError as exc:
+            self._reject('invalid_episode', f'episode {msg.episode_id}: {exc}')
+            return
+        episode, now = info.episode_id, time.monotonic()
+        window = (info.num_targets, info.start_ns, info.end_ns)
+        started = info.counts is None
+        pending = self._open.get(episode)
+        known = pending if pending is not None else self._scored.get(episode)
+        if known is not None and known.window is not None:
+            first = known.started_ns
+            restarted = started and first is not None and info.published_ns != first
+            if known.window != window or restarted:
+                self._node.get_logger().info(
+                    f'episode {episode}: EpisodeInfo of a new run of the source; '
+                    'forgetting the previous one'
+                )
+                self._restart_episode(episode, window, now)
+            elif pending is None:
+                return  # a repeated EpisodeInfo of a scored episode
+        ep = self._episode(episode, now)
+        ep.window = window
+        if started:
+            ep.started_ns = ep.started_ns if ep.started_ns is not None else info.published_ns
+        else:
+            ep.counts = info.counts
+        self._try(episode)
+
+    def on_truth(self, msg: GroundTruth) -> None:
+        """A GroundTruth message the stream mode did not take."""
+        try:
+            stamp = valid_stamp_ns(msg.header.stamp)
+        except ValueError as exc:
+            self._reject('invalid_truth', f'episode {msg.episode_id}: {exc}')
+            return
+        episode, now = msg.episode_id, time.monotonic()
+        done = self._scored.get(episode)
+        if done is not None and episode not in self._open:
+            if done.window is None or done.window[1] <= stamp <= done.window[2]:
+                self.events['truth_after_score'] += 1
+                return
+        key = (int(msg.sensor_id), stamp, int(msg.lane))
+        ep = self._open.get(episode)
+        if (
+            ep is None or key not in ep.truth
+        ) and self._buffered >= self.config.max_buffered_truth:
+            self._reject(
+                'truth_buffer_full',
+                f'episode {episode}: {self._buffered} ground-truth messages held already',
+            )
+            return
+        ep = self._episode(episode, now)
+        if key not in ep.truth:
+            self._buffered += 1
+        ep.truth[key] = (conv.ground_truth_target(msg), float(msg.true_velocity))
+        self._try(episode)
+
+    def on_tracks(self, msg: TrackArray) -> None:
+        """A TrackArray the stream mode did not take."""
+        try:
+            stamps = _check_tracks(msg)
+        except ValueError as exc:
+            self._reject('invalid_tracks', f'episode {msg.episode_id}: {exc}')
+            return
+        if not msg.final:
+            return
+        episode, now = msg.episode_id, time.monotonic()
+        done = self._scored.get(episode)
+        if done is not None and episode not in self._open:
+            w = done.window
+            if w is None or all(w[1] <= s <= w[2] for s in stamps):
+                self.events['final_after_score'] += 1
+                return
+        ep = self._episode(episode, now)
+        ep.final, ep.final_rx = msg, now
+        self._try(episode)
+
+    def tick(self, now: float) -> None:
+        """Score episodes whose truth timed out, drop those without final tracks."""
+        cfg = self.config
+        for episode, ep in list(self._open.items()):
+            if ep.final is not None and now - ep.final_rx > cfg.truth_timeout:
+                self._node.get_logger().warning(
+                    f'episode {episode}: scoring with {len(ep.truth)} ground-truth messages '
+                    f'({"unknown" if ep.counts is None else sum(ep.counts.values())} expected) '
+                    f'after waiting {cfg.truth_timeout:g} s'
+                )
+                self._score(episode)
+            elif ep.final is None and now - ep.last_rx > cfg.forget_after:
+                self._drop(episode, f'no final tracks for {cfg.forget_after:g} s')
+
+    # --- bookkeeping ----------------------------------------------------------------------
+    def _episode(self, episode: int, now: float) -> _Episode:
+        """The open record of ``episode`` (created, and the oldest dropped past the limit)."""
+        ep = self._open.get(episode)
+        if ep is None:
+            while len(self._open) >= self.config.max_open_episodes:
+                oldest = min(self._open, key=lambda k: self._open[k].last_rx)
+                if self._open[oldest].final is not None:
+                    self._score(oldest)
+                else:
+                    self._drop(oldest, f'more than {self.config.max_open_episodes} open')
+            ep = self._open[episode] = _Episode(last_rx=now)
+        ep.last_rx = now
+        return ep
+
+    def forget_unannounced(self) -> None:
+        """The source is a stream: drop the truth held for episodes no EpisodeInfo announced
+        (stream mode kept its own copy)."""
+        for episode, ep in list(self._open.items()):
+            if ep.window is None and ep.final is None:
+                self._buffered -= len(self._open.pop(episode).truth)
+
+    def _drop(self, episode: int, why: str) -> None:
+        ep = self._open.pop(episode)
+        self._buffered -= len(ep.truth)
+        self.events['episodes_dropped'] += 1
+        self._node.get_logger().warning(
+            f'episode {episode}: dropped unscored ({why}; {len(ep.truth)} ground-truth messages)'
+        )
+
+    def _restart_episode(self, episode: int, window: Window, now: float) -> None:
+        """A new run of ``episode``: the old one is scored with what it has (if its final
+        came) or forgotten; truth that only the new window holds is kept for the new run."""
+        self._scored.pop(episode, None)
+        old = self._open.get(episode)
+        if old is None:
+            return
+        moved = {
+            k: v
+            for k, v in old.truth.items()
+            if not old.inside(k[1]) and window[1] <= k[1] <= window[2]
+        }
+        for k in moved:
+            del old.truth[k]
+        if old.final is not None:
+            self._score(episode)
+        else:
+            self._drop(episode, 'a new run of the source began')
+        self._scored.pop(episode, None)
+        if moved:
+            self._episode(episode, now).truth.update(moved)
+            self._buffered += len(moved)
+
+    def new_run(self) -> None:
+        """The source restarted: its episode ids start again, so the scored ids are
+        forgotten. Unscored episodes stay: the old run's last finals may still be on their
+        way; each is scored as usual, or replaced when the new run's EpisodeInfo for its id
+        comes, or dropped after ``forget_after``."""
+        self._scored.clear()
+
+    def _remember(self, episode: int, ep: _Episode) -> None:
+        self._scored[episode] = _Scored(ep.window, ep.started_ns)
+        self._scored.move_to_end(episode)
+        while len(self._scored) > self.config.max_scored_episodes:
+            self._scored.popitem(last=False)
+
+    # --- scoring --------------------------------------------------------------------------
+    @staticmethod
+    def _complete(ep: _Episode, truth: Iterable[Key]) -> bool:
+        """Whether ``truth`` (keys inside the window) holds every ENDED count."""
+        if ep.counts is None:
+            return False
+        have = Counter(key[0] for key in truth)
+        return all(have[sensor] >= n for sensor, n in ep.counts.items())
+
+    def _try(self, episode: int) -> None:
+        ep = self._open[episode]
+        if (
+            ep.final is not None
+            and ep.counts is not None
+            and len(ep.truth) >= sum(ep.counts.values())  # cheap, before the full count
+            and self._complete(ep, [k for k in ep.truth if ep.inside(k[1])])
+        ):
+            self._score(episode)
+
+    def _score(self, episode: int) -> None:
+        ep = self._open.pop(episode)
+        self._buffered -= len(ep.truth)
+        truth = {k: v for k, v in ep.truth.items() if ep.inside(k[1])}
+        tracks = ep.final
+        complete = self._complete(ep, truth)
+        self._remember(episode, ep)
+        ids, stamps, _, labels = conv.tracks_from_msg(tracks)
+        lanes, _ = conv.track_lanes_from_msg(tracks)
+        track_of = dict(zip(zip(ids.tolist(), stamps.tolist(), lanes.tolist()), labels.tolist()))
+        keys = list(truth)
+        index = self._sensor_index
+        values = list(truth.values())
+        detections = Detections(
+            np.array([index(k[0]) for k in keys], dtype=np.int64),
+            conv.ns_to_seconds([k[1] for k in keys]),
+            np.array([v[1] for v in values], dtype=float),
+            np.array([v[0] for v in values], dtype=np.int64),
+        )
+        result = score(detections, np.array([track_of.get(k, -1) for k in keys], np.int64))
+        accuracy = result.accuracy if result.total > 0 else math.nan
+        if complete and result.total > 0:
+            self.sum += accuracy
+            self.in_mean += 1
+        elif not complete:
+            self.incomplete += 1
+        mean = self.sum / self.in_mean if self.in_mean else math.nan
+        msg = conv.score_to_msg(
+            episode_id=episode,
+            method=tracks.method,
+            score=result,
+            mean_accuracy=mean,
+            episodes_scored=self.in_mean,
+            stamp_ns=self._node.get_clock().now().nanoseconds,
+        )
+        msg.accuracy = accuracy
+        msg.truth_complete = complete
+        msg.truth_expected = 0 if ep.counts is None else sum(ep.counts.values())
+        msg.truth_received = len(truth)
+        msg.episodes_incomplete = self.incomplete
+        self._score_pub.publish(msg)
+        note = (
+            ''
+            if complete
+            else (
+                f' [truth incomplete: {len(truth)} of '
+                f'{"unknown" if ep.counts is None else msg.truth_expected}; not in the mean]'
+            )
+        )
+        self._node.get_logger().info(
+            f'episode {episode} [{tracks.method}]: accuracy {accuracy:.4f} '
+            f'({result.correct}/{result.total}), link P/R {result.link_precision:.4f}/'
+            f'{result.link_recall:.4f}, id switches {result.identity_switches}, '
+            f'ARI {result.adjusted_rand_index:.4f}; mean accuracy {mean:.4f} over '
+            f'{self.in_mean} episode(s){note}'
+        )
