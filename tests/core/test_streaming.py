@@ -1,6 +1,7 @@
 """The streaming tracker on hand-made roads and seeded simulator data (no ROS)."""
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from mlkm_core.streaming import (
     StreamConfig,
     StreamTracker,
 )
+from mlkm_core.streaming.solve import InlineExecutor
 from mlkm_core.types import Layout
 
 #: ten stations 100 m apart
@@ -312,3 +314,125 @@ def test_flush_on_a_quiet_road_then_the_stream_goes_on():
     run.flush()
     assert groups(run.labels) == [list(range(10)), list(range(10, 20))]
     assert run.labels[99] == -1 and run.tracker.stats()['late'] == 1
+
+
+class LateExecutor:
+    """Holds each submitted solve until the test says it is done (or its result is asked
+    for): solves that complete late, interleaved with the pushes."""
+
+    def __init__(self):
+        self.futures = []
+
+    def submit(self, fn, *args):
+        future = LateFuture(fn, args)
+        self.futures.append(future)
+        return future
+
+    def complete(self):
+        for f in self.futures:
+            f.finished = True
+
+
+class LateFuture:
+    def __init__(self, fn, args):
+        self.fn, self.args, self.finished, self.value = fn, args, False, None
+
+    def done(self):
+        return self.finished
+
+    def result(self):
+        if self.value is None:
+            self.value = self.fn(*self.args)
+            self.finished = True
+        return self.value
+
+
+def run_with(rows, config, layout, executor, complete=None, seed=0):
+    """Push ``rows`` in stamp order into a tracker with ``executor``; after each push,
+    ``complete(rng, executor)`` may finish solves in flight; then flush."""
+    rng = np.random.default_rng(seed)
+    run = Run(StreamTracker(layout, config, executor=executor))
+    for key in sorted(range(len(rows)), key=lambda k: rows[k][1]):
+        run.push(key, rows[key])
+        if complete is not None:
+            complete(rng, executor)
+        if rng.random() < 0.3:
+            run._take(run.tracker.poll())
+    run.flush()
+    assert not run.tracker.solving and run.tracker.working_set == 0
+    assert sorted(run.labels) == list(range(len(rows)))
+    return run
+
+
+def false_alarms(labels):
+    return sorted(k for k, t in labels.items() if t < 0)
+
+
+@pytest.mark.parametrize('method', ['multiframe', 'assignment'])
+def test_solves_beside_the_stream_commit_the_same_as_inline_solves(method):
+    ds, rows = _sim(n_targets=20, seed=4, **CLUTTER)
+    config = StreamConfig(method=method, lag=10.0, solve_interval=5.0)
+    inline = run_rows(rows, config, layout=ds.layout)
+    assert inline.tracker.stats()['solves'] >= 5
+
+    def sometimes(rng, executor):  # each solve in flight finishes with p = 0.05 per push
+        if rng.random() < 0.05:
+            executor.complete()
+
+    same = run_with(rows, config, ds.layout, InlineExecutor())
+    assert same.labels == inline.labels  # solved at once: the same ids too
+    for seed in (0, 1):
+        late = run_with(rows, config, ds.layout, LateExecutor(), sometimes, seed)
+        assert late.tracker.stats()['solves'] == inline.tracker.stats()['solves']
+        assert groups(late.labels) == groups(inline.labels)
+        assert false_alarms(late.labels) == false_alarms(inline.labels)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        threaded = run_with(rows, config, ds.layout, pool)
+    assert groups(threaded.labels) == groups(inline.labels)
+    assert false_alarms(threaded.labels) == false_alarms(inline.labels)
+
+
+def test_hand_made_road_commits_the_same_with_late_solves():
+    # three vehicles 4 s apart, one missed at station 4, a false alarm at station 6
+    rows = vehicle(0.0, 25.0) + vehicle(4.0, 20.0) + vehicle(8.0, 30.0, [0, 1, 2, 3, 5, 6])
+    rows.append((6, 20.0, 40.0))
+    config = StreamConfig(method='assignment', lag=10.0, solve_interval=5.0)
+    inline = run_rows(rows, config)
+    assert groups(inline.labels) == [list(range(10)), list(range(10, 20)), list(range(20, 26))]
+    assert false_alarms(inline.labels) == [26]
+    late = run_with(rows, config, ROAD, LateExecutor(), lambda rng, ex: None)
+    assert groups(late.labels) == groups(inline.labels)
+    assert false_alarms(late.labels) == [26]
+
+
+def test_push_only_submits_the_solve_and_links_at_once(monkeypatch):
+    """With an executor, no window is solved inside push: the method's associate is never
+    called there, the pushes return with their immediate links, and poll and flush apply
+    the solves in boundary order."""
+    import mlkm_core.streaming.solve as solve_module
+
+    def refuse(*args, **kwargs):
+        raise AssertionError('a window was solved inside push')
+
+    rows = vehicle(0.0, 25.0) + vehicle(30.0, 25.0)
+    executor = LateExecutor()
+    run = Run(StreamTracker(ROAD, StreamConfig(lag=10.0, solve_interval=5.0), executor=executor))
+    with monkeypatch.context() as m:
+        m.setattr(solve_module, 'solve_window', refuse)
+        for key, row in enumerate(rows):
+            u = run.push(key, row)
+            if key in (1, 11):  # the second detection of each vehicle joins its first
+                [t] = u.tracks
+                assert t.keys.tolist() == [key - 1, key]
+        assert run.tracker.solving and len(executor.futures) == 1  # one at a time
+        assert run.tracker.stats()['solves'] == 0 and not run.labels
+    executor.complete()
+    run._take(run.tracker.poll())  # the first window applied, the next one submitted
+    assert run.tracker.stats()['solves'] == 1 and len(executor.futures) == 2
+    run.flush()  # waits for the solves in flight, solves the rest
+    assert not run.tracker.solving and run.tracker.working_set == 0
+    assert groups(run.labels) == [list(range(10)), list(range(10, 20))]
+    assert (
+        run.tracker.stats()['solves']
+        == run_rows(rows, run.tracker.config).tracker.stats()['solves']
+    )

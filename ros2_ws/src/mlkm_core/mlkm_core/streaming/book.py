@@ -18,6 +18,7 @@ COUNTERS = (
     'solves',
     'degraded',
     'failed_solves',
+    'executor_errors',
     'committed',
     'assigned',
     'false_alarms',

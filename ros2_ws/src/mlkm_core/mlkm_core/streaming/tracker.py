@@ -5,21 +5,23 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from mlkm_core.associators import make_associator
 from mlkm_core.associators.motion import MotionParams
-from mlkm_core.streaming.book import COUNTERS, Det, TrackBook, as_detections, canon
+from mlkm_core.streaming.book import COUNTERS, Det, as_detections, canon
 from mlkm_core.streaming.config import (
     StreamConfig,
     StreamUpdate,
 )
-from mlkm_core.streaming.motion import calibrate_on, link_weights, overdue_at
-from mlkm_core.streaming.window import owners, solve_window
+from mlkm_core.streaming.motion import link_weights
+from mlkm_core.streaming.revise import Revisions
+from mlkm_core.streaming.solve import WindowProblem, WindowSolution, solve
+from mlkm_core.streaming.window import owners
 from mlkm_core.types import UNKNOWN_LANE, Layout
 
-#: the counters of ``StreamTracker.stats``
 #: methods given the detections of recently ended tracks as context (they calibrate their
 #: motion model on their input; the K-means methods would cluster the context too)
 CONTEXT_METHODS = ('assignment', 'multiframe', 'mlkm_robust')
@@ -27,7 +29,22 @@ CONTEXT_METHODS = ('assignment', 'multiframe', 'mlkm_robust')
 CONTEXT = -2
 
 
-class StreamTracker(TrackBook):
+@dataclass
+class _Prepared:
+    """A boundary's window, snapshotted for its solve, and what applying the solution needs."""
+
+    k: int | None  # boundary index; None: a flush's window (everything)
+    bound: float  # [s]
+    cutoff: float  # [s] detections before it are committed by this solve
+    window: list[Det]
+    problem: WindowProblem | None = None  # None: an empty window (only ends tracks)
+    anchor_track: np.ndarray | None = None
+    last: np.ndarray | None = None
+    occupied: dict | None = None
+    n_anchors: int = 0
+
+
+class StreamTracker(Revisions):
     """Associates an endless stream of detections into tracks with a fixed commit lag."""
 
     def __init__(
@@ -36,11 +53,20 @@ class StreamTracker(TrackBook):
         config: StreamConfig = StreamConfig(),  # noqa: B008  (frozen, immutable)
         entries: Sequence[float] = (),
         exits: Sequence[float] = (),
+        executor: Any = None,
     ) -> None:
+        """``executor``: an object with ``submit(fn, *args)`` returning a future
+        (``concurrent.futures`` shape) on which window solves run beside the stream: ``push``
+        then only snapshots a due window and submits it, and ``push`` and ``poll`` apply
+        finished solves in boundary order. None: each solve runs inside the ``push`` whose
+        stamp made its boundary due. The committed association is the same either way."""
         super().__init__(layout.n_sensors, config.confirm_count)
         self.layout = layout
         self.config = config
-        self._associator = make_associator(config.method, config.associator_config())
+        self._executor = executor
+        self._inflight: tuple[_Prepared, Any] | None = None
+        self._since: list[int] = []  # keys pushed since the in-flight window was snapshotted
+        self._late_before = -math.inf  # pushes stamped before it are late
         pos = layout.positions
         n_s = layout.n_sensors
         # a station right after an on-ramp (or the first) may see births; a station right
@@ -61,7 +87,7 @@ class StreamTracker(TrackBook):
             s = int(np.searchsorted(pos, float(x))) - 1
             if s >= 0:
                 self._before_exit[s] = True
-        self._context: deque = deque(maxlen=config.context_size)
+        self._context: list[tuple[float, tuple, Det]] = []  # (end stamp, canon, det), sorted
         self._history: deque = deque(maxlen=config.calibration_size)
         self._params = MotionParams()
         self._calibrated_at: int | None = None
@@ -110,7 +136,7 @@ class StreamTracker(TrackBook):
         key, sensor_index, stamp, velocity = self._validate(key, sensor_index, stamp, velocity)
         self._stats['pushed'] += 1
         self._begin()
-        if stamp < self._committed_until:
+        if stamp < max(self._committed_until, self._late_before):
             self._stats['late'] += 1
             self._unassigned.append(key)
             self._committed.append((key, -1))
@@ -133,13 +159,30 @@ class StreamTracker(TrackBook):
             tid = self._new_track()
         self._move(d, tid)
         self._retail(tid)
+        if self._inflight is not None:
+            self._since.append(key)
         return self._end()
 
-    def flush(self) -> StreamUpdate:
-        """Commit everything and finalise every track (the road fell quiet, or input ended)."""
+    def poll(self) -> StreamUpdate:
+        """Apply the window solves the executor finished (in boundary order) and submit the
+        next due one; what changed. Call it often while a solve is in flight
+        (``solving``): commits arrive with it when no detection is pushed."""
         self._begin()
+        self._advance()
+        return self._end()
+
+    @property
+    def solving(self) -> bool:
+        """A window solve is in flight on the executor."""
+        return self._inflight is not None
+
+    def flush(self) -> StreamUpdate:
+        """Commit everything and finalise every track (the road fell quiet, or input ended);
+        waits for the solves in flight."""
+        self._begin()
+        self._advance(wait=True)
         if self._dets:
-            self._solve(None)
+            self._run(self._prepare(None), wait=True)
         self._committed_until = max(self._committed_until, self._newest)
         if math.isfinite(self._newest):
             self._next_k = math.floor(self._newest / self.config.solve_interval) + 1
@@ -203,18 +246,28 @@ class StreamTracker(TrackBook):
         return (cands[best][0], cands[best][1].key) if w[best] < 0 else (-1, -1)
 
     # ----------------------------------------------------------------- revision and commit
-    def _advance(self) -> None:
-        """Solve every boundary the newest stamp has passed by the reorder tolerance.
+    def _advance(self, wait: bool = False) -> None:
+        """Solve every boundary the newest stamp has passed by the reorder tolerance, in
+        order: apply the solve in flight once it is done (``wait``: wait for it), then
+        snapshot the next due window and solve it (or submit it to the executor).
 
         Boundaries whose window is empty only end tracks; a run of them is skipped to the
         first one with a window (or the last passed), ending first the tracks that the
         skipped boundaries would have ended, so the outcome is that of solving each.
         """
         c = self.config
-        if self._next_k is None:
-            return
-        last_k = math.floor((self._newest - c.reorder_tolerance) / c.solve_interval)
-        while self._next_k <= last_k:
+        while True:
+            if self._inflight is not None:
+                prepared, future = self._inflight
+                if not (wait or future.done()):
+                    return
+                self._inflight = None
+                self._finish(prepared, self._result(prepared, future))
+            if self._next_k is None:
+                return
+            last_k = math.floor((self._newest - c.reorder_tolerance) / c.solve_interval)
+            if self._next_k > last_k:
+                return
             oldest = min((self._dets[k].stamp for k in self._pending), default=math.inf)
             first_k = math.floor(oldest / c.solve_interval) + 1 if oldest < math.inf else last_k
             target = min(max(first_k, self._next_k), last_k)
@@ -223,8 +276,35 @@ class StreamTracker(TrackBook):
                 self._committed_until = max(self._committed_until, skipped - c.lag)
                 self._finalize(skipped, False)
                 self._next_k = target
-            self._solve(self._next_k)
+            prepared = self._prepare(self._next_k)
             self._next_k += 1
+            self._run(prepared, wait)
+
+    def _run(self, prepared: _Prepared, wait: bool) -> None:
+        """Solve a snapshotted window: at once without an executor (or for an empty window),
+        else submitted (and, with ``wait``, applied once done)."""
+        if prepared.problem is None or self._executor is None:
+            solution = solve(prepared.problem) if prepared.problem is not None else None
+            self._finish(prepared, solution)
+            return
+        try:
+            future = self._executor.submit(solve, prepared.problem)
+        except Exception:  # noqa: BLE001 - a broken executor: solve here, lose nothing
+            self._stats['executor_errors'] += 1
+            self._finish(prepared, solve(prepared.problem))
+            return
+        self._inflight = (prepared, future)
+        self._since = []
+        if wait:
+            self._inflight = None
+            self._finish(prepared, self._result(prepared, future))
+
+    def _result(self, prepared: _Prepared, future) -> WindowSolution:
+        try:
+            return future.result()
+        except Exception:  # noqa: BLE001 - the executor failed it: solve here (same result)
+            self._stats['executor_errors'] += 1
+            return solve(prepared.problem)
 
     def _anchors(self) -> list[tuple[Det, int, bool]]:
         """(detection, track, is the track's last) of each open track's last committed ones."""
@@ -240,9 +320,10 @@ class StreamTracker(TrackBook):
             out += [(d, tid, i == len(done) - 1) for i, d in enumerate(done)]
         return out
 
-    def _solve(self, k: int | None) -> None:
-        """Re-solve the window below boundary k (None: everything, at a flush), commit what
-        fell out of the lag and finalise the tracks that ended."""
+    def _prepare(self, k: int | None) -> _Prepared:
+        """Snapshot the window below boundary k (None: everything, at a flush) with its
+        anchors and context: the problem of its solve, a function of the committed state and
+        of the detections stamped before the boundary."""
         c = self.config
         final = k is None
         bound = math.inf if final else k * c.solve_interval
@@ -252,141 +333,73 @@ class StreamTracker(TrackBook):
             key=canon,
         )
         self._solved = True
-        if window:
+        if not final:
+            self._late_before = max(self._late_before, cutoff)
+        prepared = _Prepared(k, bound, cutoff, window)
+        if not window:
+            return prepared
+        anchors = sorted(self._anchors(), key=lambda a: canon(a[0]))
+        context = [e[2] for e in self._context] if c.method in CONTEXT_METHODS else []
+        anchors = [(d, CONTEXT, False) for d in context] + anchors
+        rows = [a[0] for a in anchors] + window
+        calibration = None
+        if not final and (
+            self._calibrated_at is None or k - self._calibrated_at >= c.calibration_every
+        ):
+            calibration = np.array(
+                list(self._history) + [(d.sensor, d.stamp, d.velocity) for d in window], float
+            ).reshape(-1, 3)
+        prepared.problem = WindowProblem(
+            c.method, c.associator_config(), self.layout, as_detections(rows), calibration
+        )
+        prepared.n_anchors = len(anchors)
+        prepared.anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)
+        prepared.last = np.array([a[2] for a in anchors] + [False] * len(window), bool)
+        prepared.occupied = {
+            tid: {self._dets[k].sensor for k in self._tracks[tid] if k not in self._pending}
+            for tid in set(prepared.anchor_track[: len(anchors)].tolist()) - {CONTEXT}
+        }
+        return prepared
+
+    def _finish(self, prepared: _Prepared, solution: WindowSolution | None) -> None:
+        """Apply a window's solution: move its detections to the tracks of the solve, commit
+        what fell out of the lag, finalise the tracks that ended and link again at once the
+        detections pushed since the snapshot whose tracks the solve changed."""
+        p = prepared
+        final = p.k is None
+        changed = set(self._changed)
+        if solution is not None:
             self._stats['solves'] += 1
-            anchors = sorted(self._anchors(), key=lambda a: canon(a[0]))
-            context = list(self._context) if self.config.method in CONTEXT_METHODS else []
-            anchors = [(d, CONTEXT, False) for d in context] + anchors
-            rows = [a[0] for a in anchors] + window
-            dets = as_detections(rows)
-            if not final:
-                self._calibrate(k, window)
-            labels, degraded, failed = solve_window(self._associator, self.layout, dets)
-            self._stats['degraded'] += degraded
-            self._stats['failed_solves'] += failed
-            n_a = len(anchors)
-            anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)
-            last = np.array([a[2] for a in anchors] + [False] * len(window), bool)
-            occupied = {
-                tid: {self._dets[k].sensor for k in self._tracks[tid] if k not in self._pending}
-                for tid in set(anchor_track[:n_a].tolist()) - {CONTEXT}
-            }
+            self._stats['degraded'] += solution.degraded
+            self._stats['failed_solves'] += solution.failed
+            if solution.params is not None:
+                self._params, self._calibrated_at = solution.params, p.k
             slack = 6 * math.sqrt(2) * self._params.stamp_noise
+            d = p.problem.detections
             own, groups = owners(
-                labels, dets.sensor_index, dets.stamp, anchor_track, last, occupied, slack
+                solution.labels, d.sensor_index, d.stamp, p.anchor_track, p.last, p.occupied, slack
             )
-            self._apply(window, own[n_a:], [g - n_a for g in groups])
-            self._commit([d for d in window if d.stamp < cutoff], bound)
+            n_a = p.n_anchors
+            self._apply(p.window, own[n_a:], [g - n_a for g in groups])
+            in_window = {d.key for d in p.window}
+            self._commit([d for d in p.window if d.stamp < p.cutoff], in_window)
         if not final:  # a flush commits up to the newest stamp (``flush``)
-            self._committed_until = max(self._committed_until, cutoff)
-        self._finalize(bound, final)
+            self._committed_until = max(self._committed_until, p.cutoff)
+        self._finalize(p.bound, final)
+        since, self._since = self._since, []
+        self._relink(since, (self._changed - changed) | set(self._gone))
 
-    def _apply(self, window: list[Det], own: np.ndarray, groups: list[np.ndarray]) -> None:
-        """Move the window's detections to the tracks of the solve."""
-        target = {d.key: int(t) for d, t in zip(window, own, strict=True) if t >= 0}
-        claimed = set(target.values())
-        groups = sorted(groups, key=lambda g: min((window[i].stamp, window[i].sensor) for i in g))
-        for g in groups:
-            votes = Counter(
-                window[i].track
-                for i in g
-                if window[i].track >= 0
-                and not self._n_committed.get(window[i].track, 1)
-                and window[i].track not in claimed
-            )
-            if votes:
-                tid = min(votes, key=lambda t: (-votes[t], t))
-            else:
+    def _relink(self, keys: list[int], changed: set[int]) -> None:
+        """Link ``keys`` (in push order) again at once if their tracks changed."""
+        for key in keys:
+            d = self._dets.get(key)
+            if d is None or key not in self._pending or d.track not in changed:
+                continue
+            old = d.track
+            self._move(d, -1)
+            self._retail(old)
+            tid, _ = self._link_now(d)
+            if tid < 0:
                 tid = self._new_track()
-            claimed.add(tid)
-            for i in g:
-                target[window[i].key] = tid
-        touched = set()
-        for d in window:
-            touched.add(d.track)
-            self._move(d, target[d.key])
-            touched.add(d.track)
-        for tid in touched:
+            self._move(d, tid)
             self._retail(tid)
-
-    def _commit(self, due: list[Det], bound: float) -> None:
-        """Commit ``due`` (canonical order): a detection whose track has another detection
-        below the boundary keeps it for good, one alone is a false alarm (-1)."""
-        touched = set()
-        for d in due:
-            tid = d.track
-            members = [
-                m
-                for m in (self._dets[k] for k in self._tracks[tid])
-                if m.key not in self._pending or m.stamp < bound
-            ]
-            self._pending.discard(d.key)
-            self._stats['committed'] += 1
-            before = [m for m in members if (m.sensor, m.stamp) < (d.sensor, d.stamp)]
-            link = max(before, key=lambda m: (m.sensor, m.stamp)).key if before else -1
-            if len(members) >= 2:
-                label = tid
-                self._n_committed[tid] += 1
-                self._stats['assigned'] += 1
-            else:
-                label = -1
-                self._move(d, -1)
-                del self._dets[d.key]
-                touched.add(tid)
-                self._unassigned.append(d.key)
-                self._stats['false_alarms'] += 1
-            if (link if label >= 0 else -1) != d.first:  # the link first published changed
-                self._stats['revised'] += 1
-            self._committed.append((d.key, label))
-            self._history.append((d.sensor, d.stamp, d.velocity))
-        for tid in touched:
-            self._retail(tid)
-
-    def _due(self, tail: Det) -> float:
-        """Stamp after which a track ending at ``tail`` is over: its passage at the next
-        station (before an off-ramp) or 1 + max_skip stations on is beyond the gate."""
-        span = 1 if self._before_exit[tail.sensor] else 1 + self._params.max_skip
-        to = min(tail.sensor + span, self.layout.n_sensors - 1)
-        return overdue_at(self._params, self.layout, tail.sensor, tail.stamp, tail.velocity, to)
-
-    def _finalize(self, bound: float, everything: bool) -> None:
-        """FINAL: a track whose detections below the boundary are all committed and that
-        passed the last station, left at an exit or is overdue (``_due``)."""
-        last_s = self.layout.n_sensors - 1
-        for tid in list(self._tracks):
-            members = [self._dets[k] for k in self._tracks[tid]]
-            if not everything:
-                if not self._n_committed[tid] or any(
-                    d.key in self._pending and d.stamp < bound for d in members
-                ):
-                    continue
-                done = [d for d in members if d.key not in self._pending]
-                tail = max(done, key=lambda d: (d.sensor, d.stamp))
-                if tail.sensor != last_s and bound <= self._due(tail):
-                    continue
-            later = [d for d in members if d.key in self._pending]
-            done = sorted(
-                (d for d in members if d.key not in self._pending), key=lambda d: (d.stamp, d.key)
-            )
-            if later:  # linked at once to a track that is over: they start their own
-                new = self._new_track()
-                for d in later:
-                    self._move(d, new)
-                self._retail(new)
-            self._drop_track(tid, np.array([d.key for d in done], np.int64))
-            for d in done:
-                del self._dets[d.key]
-            if len(done) >= 3:
-                self._context.extend(sorted(done, key=canon))
-            self._stats['final_tracks'] += 1
-
-    def _calibrate(self, k: int, window: list[Det]) -> None:
-        """Re-estimate the motion model on the history and the window, every
-        ``calibration_every`` solves (a function of the data and the boundaries only)."""
-        c = self.config
-        if self._calibrated_at is not None and k - self._calibrated_at < c.calibration_every:
-            return
-        rows = list(self._history) + [(d.sensor, d.stamp, d.velocity) for d in window]
-        params = calibrate_on(self.layout, rows)
-        if params is not None:
-            self._params, self._calibrated_at = params, k

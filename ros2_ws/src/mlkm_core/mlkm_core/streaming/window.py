@@ -82,7 +82,7 @@ def owners(
             groups.append(np.array([i], np.int64))
     for members in clusters.values():
         heads = sorted(
-            (int(sensor[i]), int(anchor_track[i]), i) for i in members if last_anchor[i]
+            (int(sensor[i]), i, int(anchor_track[i])) for i in members if last_anchor[i]
         )
         starts = [h[0] for h in heads]
         rest = []
@@ -92,7 +92,7 @@ def owners(
             s = int(sensor[i])
             if heads:
                 j = bisect.bisect_right(starts, s) - 1
-                _, track, head = heads[max(j, 0)]
+                _, head, track = heads[max(j, 0)]
                 fits = j >= 0 or stamp[i] <= stamp[head] + slack
                 if fits and s not in occupied.get(track, ()):
                     owner[i] = track
