@@ -12,6 +12,7 @@ from rclpy.serialization import deserialize_message
 
 from mlkm_assoc.reorder import ReorderBuffer
 from mlkm_assoc.stream_worker import MAX_BATCH, TrackerProcess, TrackerSettings
+from mlkm_core.streaming import StreamConfig, StreamTracker
 from mlkm_core.types import Layout
 from mlkm_ros import conversions as conv
 from road_sensor_msgs.msg import Track, TrackArray
@@ -82,3 +83,66 @@ def test_round_robin_backlog_comes_out_in_stamp_order() -> None:
     stamps = [x[0] for x in out]
     assert len(out) == 60 and stamps == sorted(stamps)
     assert buf.released_by_timeout == 0
+
+
+def test_window_solves_beside_the_tracker_commit_as_the_core_tracker() -> None:
+    """Vehicles every 3 s at 20 m/s for 60 s of stamp time, a false alarm among them, through
+    the tracker process (its window solves in the solver process): commits reach 55 s (the
+    last due boundary, 70 s, minus the lag) before any flush, and the committed labels after
+    the flush equal the core tracker's, solving inline, on the same detections."""
+    rows = []
+    for i in range(20):
+        rows += [(s, 3.0 * i + p / 20.0, 20.0) for s, p in enumerate(POS)]
+    rows.append((1, 31.3, 35.0))  # a false alarm
+    rows.sort(key=lambda r: r[1])
+    core = StreamTracker(LAYOUT, StreamConfig(method='assignment', lag=15.0))
+    committed = {}
+    for key, (s, stamp, v) in enumerate(rows):
+        committed.update(core.push(key, s, stamp, v).committed.tolist())
+    committed.update(core.flush().committed.tolist())
+    expected = {(5 + rows[k][0], round(rows[k][1] * NS)): t for k, t in committed.items()}
+
+    proc = TrackerProcess(TrackerSettings('assignment', 15.0, 5, 0))
+    latest: dict[tuple[int, int], int] = {}
+    stats: dict = {}
+
+    def take(answer) -> None:
+        assert answer.error is None, answer.error
+        stats.update(answer.stats)
+        if answer.data is not None:
+            d = conv.stream_tracks_from_msg(deserialize_message(answer.data, TrackArray))
+            for i in range(d.labels.size):
+                latest[(int(d.sensor_ids[i]), int(d.stamps_ns[i]))] = int(d.labels[i])
+
+    try:
+        proc.put(('layout', LAYOUT, (), ()))
+        for key, (s, stamp, v) in enumerate(rows):
+            det = ('det', key, s, 5 + s, round(stamp * NS), v, POS[s], -1, math.nan, key * 1e-6)
+            proc.put(det)
+        proc.put(('tick', 10.0))  # the node's clock: the reorder buffer lets everything go
+        committed_until = -math.inf
+        while committed_until < 55.0:
+            answer = proc.get(timeout=120.0)
+            assert answer is not None and not answer.flushed
+            take(answer)
+            committed_until = answer.committed_until
+        proc.put(('flush', 11.0))
+        proc.put(None)
+        while (answer := proc.get(timeout=120.0)) is not None:
+            take(answer)
+    finally:
+        proc.close()
+    assert len(latest) == len(rows) == len(expected)
+    assert stats['tracker.solves'] == core.stats()['solves'] >= 7
+    assert stats['tracker.executor_errors'] == 0
+
+    def partition(labels):
+        out = {}
+        for det, t in labels.items():
+            if t >= 0:
+                out.setdefault(t, set()).add(det)
+        return sorted(sorted(g) for g in out.values())
+
+    assert partition(latest) == partition(expected)
+    assert len(partition(expected)) == 20
+    assert sorted(k for k, t in latest.items() if t < 0) == [(6, round(31.3 * NS))]

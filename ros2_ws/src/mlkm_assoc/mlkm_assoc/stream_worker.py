@@ -3,9 +3,12 @@ process of its own, fed detection by detection, answering with ready-to-publish 
 
 The node's executor thread only validates a detection and queues it (fast ingest); this
 process puts it through the reorder buffer (:mod:`mlkm_assoc.reorder`, which undoes the
-round-robin over the sensor topics) into the tracker, so a window re-solve inside the tracker
-holds up neither the node's GIL nor its ingest (the detections queued behind it wait, though).
-With the tracker's own reorder tolerance, the committed labels are a function of the
+round-robin over the sensor topics) into the tracker, which links it at once. The tracker's
+window solves run in a third process (:mod:`mlkm_assoc.stream_solver`): a push only submits
+a due window, and the solution is applied at its boundary when it is done (polled after
+every batch and every few milliseconds while a solve is in flight), so no detection waits
+for a solve and the commits flow while the road is quiet. With the tracker's own reorder
+tolerance, the committed labels are a function of the
 detections alone, so live equals ``mlkm associate --stream`` on the same detections.
 
 Whatever is queued when the process gets to it is pushed as one batch and answered with one
@@ -27,11 +30,14 @@ from typing import Any
 import numpy as np
 
 from mlkm_assoc.reorder import ReorderBuffer
+from mlkm_assoc.stream_solver import SolverClient, SolverProcess
 from mlkm_core.types import Layout
 
 NS_PER_S = 1_000_000_000
 #: Queued items (detections and ticks) taken as one batch at most [-].
 MAX_BATCH = 512
+#: Wait for queued items while a window solve is in flight [s]: how often it is polled.
+POLL_PERIOD = 0.005
 #: Track status values (road_sensor_msgs/Track.STATUS_*; the core's TENTATIVE..FINAL).
 TENTATIVE, CONFIRMED, FINAL = 0, 1, 2
 
@@ -75,9 +81,10 @@ class TrackerState:
     """The tracker and the data of the detections it may still publish (ROS-free apart from
     ``encode``, which turns a batch into a serialized TrackArray)."""
 
-    def __init__(self, settings: TrackerSettings, encode) -> None:
+    def __init__(self, settings: TrackerSettings, encode, executor=None) -> None:
         self._settings = settings
         self._encode = encode
+        self._executor = executor  # runs the tracker's window solves (None: inside push)
         self._tracker = None
         self._layout: Layout | None = None
         self._rows: dict[int, list] = {}  # key -> [sensor id, stamp ns, v, pos, lane, length]
@@ -106,7 +113,9 @@ class TrackerState:
 
         s = self._settings
         config = StreamConfig(method=s.method, lag=s.lag, segment_size=s.segment_size, seed=s.seed)
-        self._tracker = StreamTracker(layout, config, entries=entries, exits=exits)
+        self._tracker = StreamTracker(
+            layout, config, entries=entries, exits=exits, executor=self._executor
+        )
         self._layout = layout
         self._reorder = ReorderBuffer(layout.n_sensors)
         self.newest = self.committed_until = -math.inf
@@ -162,6 +171,25 @@ class TrackerState:
                 continue
             merged.add(update)
         return self._answer(merged, received, time.perf_counter() - t0, error)
+
+    @property
+    def solving(self) -> bool:
+        return self._tracker is not None and self._tracker.solving
+
+    def poll(self) -> Answer | None:
+        """Apply the window solves that are done; an Answer when that changed anything."""
+        if not self.solving:
+            return None
+        t0 = time.perf_counter()
+        merged = _Merged()
+        error = None
+        try:
+            merged.add(self._tracker.poll())
+        except Exception as exc:  # noqa: BLE001 - reported
+            error = f'tracker poll failed: {type(exc).__name__}: {exc}'
+        if not (merged.tracks or merged.unassigned or merged.committed or error):
+            return None
+        return self._answer(merged, [], time.perf_counter() - t0, error)
 
     def flush(self, now: float) -> Answer:
         t0 = time.perf_counter()
@@ -336,11 +364,12 @@ class TrackerProcess:
 
     def __init__(self, settings: TrackerSettings) -> None:
         ctx = multiprocessing.get_context('spawn')
+        self._solver = SolverProcess(ctx)
         self._items = ctx.Queue()
         self._answers, sender = ctx.Pipe(duplex=False)
         self._proc = ctx.Process(
             target=_serve,
-            args=(self._items, sender, os.getpid(), settings),
+            args=(self._items, sender, os.getpid(), settings, self._solver.ends),
             name='mlkm_stream_tracker',
             daemon=True,
         )
@@ -366,9 +395,10 @@ class TrackerProcess:
         if self._proc.is_alive():
             self._proc.terminate()
             self._proc.join(2.0)
+        self._solver.close()
 
 
-def _serve(items, answers, parent: int, settings: TrackerSettings) -> None:
+def _serve(items, answers, parent: int, settings: TrackerSettings, solver_ends=None) -> None:
     """Process main loop: queued items in, detections through the reorder buffer into the
     tracker, one Answer per batch out."""
     import queue as _queue
@@ -382,13 +412,15 @@ def _serve(items, answers, parent: int, settings: TrackerSettings) -> None:
     except ImportError:
         pass
     _warm_up(settings)
-    state = TrackerState(settings, encode_tracks)
+    executor = SolverClient(solver_ends) if solver_ends is not None else None
+    state = TrackerState(settings, encode_tracks, executor)
     while True:
         try:
-            item = items.get(timeout=1.0)
+            item = items.get(timeout=POLL_PERIOD if state.solving else 1.0)
         except _queue.Empty:
             if os.getppid() != parent:
                 return
+            _send(answers, state.poll())
             continue
         for n in range(MAX_BATCH):
             if n:
@@ -412,6 +444,7 @@ def _serve(items, answers, parent: int, settings: TrackerSettings) -> None:
                 else:
                     _send(answers, state.flush(item[1]))
         _send(answers, state.release())
+        _send(answers, state.poll())
 
 
 def _warm_up(settings: TrackerSettings) -> None:

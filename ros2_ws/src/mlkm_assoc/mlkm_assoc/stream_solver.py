@@ -1,0 +1,133 @@
+"""Stream mode's solver process: the tracker's window solves, beside the tracker process.
+
+The tracker process (:mod:`mlkm_assoc.stream_worker`) must answer every detection within
+milliseconds, but a window solve of the core's ``StreamTracker`` takes up to seconds. So the
+tracker gets a ``SolverClient`` as its executor: ``submit`` sends the window's problem (plain
+arrays, see :mod:`mlkm_core.streaming.solve`) to this process and returns at once; the
+tracker applies the solution at its boundary once ``done``. Solves run one at a time, in
+the order submitted. Both processes are children of the node (a daemonic process has no
+children of its own), connected by two pipes.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from typing import Any
+
+
+class SolverProcess:
+    """The solver process, started by the node; ``ends`` go to the tracker process."""
+
+    def __init__(self, ctx) -> None:
+        request_reader, request_writer = ctx.Pipe(duplex=False)
+        result_reader, result_writer = ctx.Pipe(duplex=False)
+        self._requests = request_writer
+        self._proc = ctx.Process(
+            target=_serve,
+            args=(request_reader, result_writer, os.getpid()),
+            name='mlkm_stream_solver',
+            daemon=True,
+        )
+        self._proc.start()
+        request_reader.close()
+        result_writer.close()
+        #: (send end of the requests, receive end of the results) for the SolverClient
+        self.ends = (request_writer, result_reader)
+
+    def close(self, timeout: float = 5.0) -> None:
+        if self._proc.is_alive():
+            try:
+                self._requests.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+            self._proc.join(timeout)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(2.0)
+
+
+class SolveFailed(RuntimeError):
+    """The solver process raised, or is gone (the tracker then solves the window itself)."""
+
+
+class SolverClient:
+    """The tracker's executor (``submit(fn, *args)`` returning a future with ``done`` and
+    ``result``), solving in the solver process."""
+
+    def __init__(self, ends) -> None:
+        self._requests, self._results = ends
+        self._waiting: deque[_Future] = deque()
+
+    def submit(self, fn, *args) -> _Future:
+        future = _Future(self)
+        try:
+            self._requests.send((fn, args))
+        except (BrokenPipeError, OSError) as exc:
+            raise SolveFailed(f'solver process gone: {exc}') from exc
+        self._waiting.append(future)
+        return future
+
+    def _collect(self, block: bool) -> None:
+        """Take the answers that arrived (``block``: wait for the next one)."""
+        while self._waiting and (block or self._results.poll()):
+            future = self._waiting.popleft()
+            try:
+                future._outcome = self._results.recv()
+            except (EOFError, OSError) as exc:
+                future._outcome = ('error', f'solver process gone: {exc}')
+            block = False
+
+
+class _Future:
+    def __init__(self, client: SolverClient) -> None:
+        self._client = client
+        self._outcome: tuple[str, Any] | None = None
+
+    def done(self) -> bool:
+        if self._outcome is None:
+            self._client._collect(False)
+        return self._outcome is not None
+
+    def result(self) -> Any:
+        while self._outcome is None:
+            self._client._collect(True)
+        kind, value = self._outcome
+        if kind != 'ok':
+            raise SolveFailed(value)
+        return value
+
+
+def _serve(requests, results, parent: int) -> None:
+    """Process main loop: (function, arguments) in, ('ok', value) or ('error', text) out."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node stops us; Ctrl-C is for it
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)
+    except ImportError:
+        pass
+    import mlkm_core.streaming.solve  # noqa: F401  (pay the imports before the first solve)
+
+    while True:
+        try:
+            if not requests.poll(1.0):
+                if os.getppid() != parent:
+                    return
+                continue
+            request = requests.recv()
+        except (EOFError, OSError):
+            return
+        if request is None:
+            return
+        fn, args = request
+        try:
+            outcome = ('ok', fn(*args))
+        except Exception as exc:  # noqa: BLE001 - reported to the tracker, which solves itself
+            outcome = ('error', f'{type(exc).__name__}: {exc}')
+        try:
+            results.send(outcome)
+        except (BrokenPipeError, OSError):
+            return
