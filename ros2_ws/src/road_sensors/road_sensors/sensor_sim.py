@@ -169,25 +169,27 @@ class SensorSimNode(SensorSource):
 
 def main(args: list[str] | None = None) -> int:
     rclpy.init(args=args)
+    node: SensorSimNode | None = None
+    error: str | None = None
     try:
+        # Constructed inside the try: a Ctrl-C that lands while the node is being set up (its
+        # publishing thread already started) is an interruption like any other.
         node = SensorSimNode()
-    except ParameterError as exc:
-        print(f'sensor_sim: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
         rclpy.spin(node)
+    except ParameterError as exc:
+        error = str(exc)
+        return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        node.stop()  # first: the thread must not report an interruption as an error
-        error = node.error
-        node.destroy_node()
+        if node is not None:
+            node.stop()  # first: the thread must not report an interruption as an error
+            error = node.error
+            node.destroy_node()
         rclpy.try_shutdown()
-    if error:
-        print(f'sensor_sim: {error}', file=sys.stderr)
-        return 1
-    return 0
+        if error:
+            print(f'sensor_sim: {error}', file=sys.stderr)
+    return 1 if error else 0
 
 
 if __name__ == '__main__':

@@ -202,20 +202,23 @@ class SumoSensorsNode(SensorSource):
 
 def main(args: list[str] | None = None) -> int:
     rclpy.init(args=args)
+    node: SumoSensorsNode | None = None
+    error: str | None = None
+    code = 0
     try:
+        # Constructed inside the try: a Ctrl-C that lands while the node is being set up (its
+        # publishing thread already started) is an interruption like any other.
         node = SumoSensorsNode()
-    except (ParameterError, SumoError) as exc:
-        print(f'sumo_sensors: error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return EXIT_SUMO
-    try:
         rclpy.spin(node)
+    except (ParameterError, SumoError) as exc:
+        error, code = str(exc), EXIT_SUMO
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        node.stop()  # first: the thread must not report an interruption as an error
-        error, code = node.error, node.exit_code
-        node.destroy_node()
+        if node is not None:
+            node.stop()  # first: the thread must not report an interruption as an error
+            error, code = node.error, node.exit_code
+            node.destroy_node()
         rclpy.try_shutdown()
     if error:
         print(f'sumo_sensors: error: {error}', file=sys.stderr)
