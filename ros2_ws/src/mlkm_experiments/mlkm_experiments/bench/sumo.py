@@ -220,6 +220,14 @@ def report_lines(sumo: dict) -> list[str]:
         '5th-percentile speed); it uses time and speed only, so it runs once.',
         '',
     ]
+    extra = sumo.get('extra_cells')
+    if extra:
+        L += [
+            f'The cells {", ".join(extra["cells"])} ran in a second process at the same time '
+            f'as the others ({extra["wall_s"] / 60:.1f} min, {extra["date"]}; same code, same '
+            'machine).',
+            '',
+        ]
     sizes = sorted({(c['vehicles'], c['stations']) for c in sumo['cells']})
     for vehicles, stations in sizes:
         cells = [
