@@ -205,6 +205,9 @@ def test_continuous_mode_streams_without_episodes(ros_process, listener, spin_un
         *('-p', 'wait_for_subscribers:=1', '-p', 'wait_for_truth_subscribers:=1'),
         *('-p', 'stamp_jitter:=0.05', '-p', 'speed_noise:=0.5', '-p', 'length_noise:=0.2'),
     )
+    # A receiver in mode auto takes a source without a /road/episode publisher for a stream.
+    assert spin_until(listener.executor, lambda: listener.layout is not None, 60.0)
+    assert listener.node.count_publishers(qos.EPISODE_TOPIC) == 0
     assert spin_until(listener.executor, lambda: sumo.proc.poll() is not None, 60.0)
     assert sumo.proc.wait(5) == 0, sumo.output()
     n = int(re.search(r'published (\d+) detections', sumo.output()).group(1))

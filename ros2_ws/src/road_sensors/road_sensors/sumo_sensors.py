@@ -68,7 +68,7 @@ class SumoSensorsNode(SensorSource):
         ramps = self._road.ramps
         self._open(
             layout,
-            True,
+            cfg.mode == 'episodes',  # a continuous source has no /road/episode publisher
             conv.layout_to_msg(
                 layout,
                 self._now_ns(),
