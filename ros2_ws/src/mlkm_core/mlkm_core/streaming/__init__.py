@@ -54,6 +54,18 @@ Mechanism
    bounded on an endless input. ``flush`` (the road fell quiet, or the input ended) solves
    and commits everything and makes every track FINAL.
 
+Solving beside the stream. A window solve takes up to seconds. Given an ``executor`` (an
+object with ``submit(fn, *args)`` returning a future: a ``concurrent.futures`` executor, or
+the live node's solver process), ``push`` never solves: at a due boundary it snapshots the
+window's problem (``mlkm_core.streaming.solve.WindowProblem``: the window, anchors and
+context as plain arrays; ``solve`` is a pure function of it) and submits it, and returns with
+the immediate link. ``push`` and ``poll`` (call it every few milliseconds while ``solving``)
+apply a finished solve at its boundary (steps 3 to 5) and submit the next due one: solves
+run one at a time, in boundary order, each from the commits of the one before; the
+detections pushed meanwhile whose tracks the solve changed are linked again at once.
+``flush`` waits for them. Commits come later in wall time, never different: without an
+executor each solve runs inside the ``push`` whose stamp made its boundary due.
+
 Status: TENTATIVE while a track holds fewer than ``confirm_count`` detections, CONFIRMED from
 then on (a revision that takes detections away can bring an uncommitted track back to
 TENTATIVE), FINAL at its end. A track that lost all its detections to a revision is reported

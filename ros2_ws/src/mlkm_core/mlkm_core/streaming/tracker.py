@@ -113,7 +113,8 @@ class StreamTracker(Revisions):
 
     def stats(self) -> dict:
         """Counters: pushed, linked, started, late, reordered, committed, assigned,
-        false_alarms, revised, solves, degraded, final_tracks, rejected; and the gauges
+        false_alarms, revised, solves, degraded, failed_solves, executor_errors (solves the
+        executor failed, run in the caller instead), final_tracks, rejected; and the gauges
         working_set, open_tracks and revision_rate: revised / committed, the share of
         committed detections whose link first published (the detection it followed in its
         track, or none) changed before the commit."""
