@@ -289,13 +289,20 @@ def memory_verdict(rss_samples: list[dict], values: dict, published: int | None)
 
 def run_memory(domain_id: int, log_dir: Path, log: Log, quick: bool) -> dict:
     probe = run_graph(
-        domain_id, log_dir / 'memory_probe', sumo_source(PROBE_DURATION), True, True, 1800.0
+        domain_id,
+        log_dir / 'memory_probe',
+        sumo_source(PROBE_DURATION),
+        flush=True,
+        rss=True,
+        timeout=1800.0,
     )
     est = probe['wall_s'] * HOUR / PROBE_DURATION
     log(f'stream memory: {PROBE_DURATION:g} simulated s took {probe["wall_s"]:.0f} s wall')
     run, duration = probe, PROBE_DURATION
     if not quick and est <= HOUR_BUDGET:
-        run = run_graph(domain_id, log_dir / 'memory', sumo_source(HOUR), True, True, 3 * est)
+        run = run_graph(
+            domain_id, log_dir / 'memory', sumo_source(HOUR), flush=True, rss=True, timeout=3 * est
+        )
         duration = HOUR
     out = {
         'scenario': f'SUMO highway (3,000 vehicles/h), {SENSORS} stations, seed 1, '
