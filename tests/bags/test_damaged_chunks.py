@@ -1,7 +1,7 @@
 """A damaged chunk costs its own messages only: the chunks after it are read and played.
 
 The damage is one flipped byte inside a chunk's compressed data of the repository's sample bag
-(6,041 messages). What should survive is computed independently with the mcap library alone:
+(about 6,000 messages). What should survive is computed independently with the mcap library alone:
 every message of every other chunk.
 """
 
@@ -25,7 +25,6 @@ from rosbag_mcap.storage import BagReader
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / 'bags' / 'sample'
-TOTAL = 6041
 KEEP_ALL = QoSProfile(
     history=HistoryPolicy.KEEP_ALL, depth=0, reliability=ReliabilityPolicy.RELIABLE
 )
@@ -77,8 +76,9 @@ def test_reader_skips_a_damaged_chunk_and_reads_the_ones_after_it(tmp_path):
     which = [0, len(chunks) // 2]
     bag, mcap_file, damaged = damaged_copy(tmp_path, which)
     expected = intact_messages(SAMPLE / 'sample_0.mcap', damaged)
-    lost = TOTAL - len(expected)
-    assert 0 < lost < TOTAL // 2
+    total = len(intact_messages(SAMPLE / 'sample_0.mcap', set()))
+    lost = total - len(expected)
+    assert 0 < lost < total // 2
 
     reader = BagReader(bag)
     got = [(m.topic, m.data) for m in reader.messages()]

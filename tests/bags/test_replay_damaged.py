@@ -24,7 +24,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def keep(topic: str, data: bytes) -> bool:
-    """Episodes 1 and 2 only (episode 0 of the sample starts before t = 0)."""
+    """Episodes 1 and 2 only: a bag of two whole episodes, smaller than the sample."""
     if topic == '/road/episode':
         return deserialize_message(data, EpisodeInfo).episode_id != 0
     if topic == '/road/ground_truth':
