@@ -103,6 +103,7 @@ def _expected_truth(episodes: int, seed: int) -> int:
 
 @pytest.mark.ros
 @pytest.mark.slow
+@pytest.mark.timeout(960)  # its own waits allow 900 s: on a saturated machine it takes minutes
 def test_sensor_sim_at_full_speed_waits_for_a_slow_truth_subscriber(
     ros_process, ros_env, tmp_path
 ) -> None:
