@@ -75,7 +75,7 @@ def report_lines(stream: dict) -> list[str]:
             f'{mem["wall_s"] / 60:.1f} min wall (a {p["duration"] / 60:.0f}-minute probe took '
             f'{p["wall_s"]:.0f} s: an hour extrapolates to {p["hour_estimate_s"] / 60:.1f} '
             'min). VmRSS of the node and of its tracker process sampled every second; progress '
-            '= the share of the detections the node has received (constant demand); early: '
+            '= the share of the detections through the tracker (constant demand); early: '
             'median over the second sixth, late: median over the last sixth; passes at a '
             'growth <= 10 %.',
             '',
@@ -98,6 +98,8 @@ def report_lines(stream: dict) -> list[str]:
             '',
             '![stream rss](stream_rss.png)',
         ]
+        if mem.get('note'):
+            L += ['', mem['note']]
     else:
         L.append(str(mem.get('status', 'not run')))
     L += ['', '### Accuracy against the commit lag', '']
