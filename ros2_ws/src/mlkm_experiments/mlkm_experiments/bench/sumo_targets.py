@@ -194,5 +194,5 @@ def grid_reference_target(grid: dict, reference: dict) -> dict:
                 drops.append(f'{label}: {_fmt(now)} vs {_fmt(r["accuracy_mean"])}')
     value = '; '.join(drops) if drops else f'{compared} figures compared'
     if worst is not None:
-        value += f'; largest change down {100 * worst[0]:+.3f} points ({worst[1]})'
+        value += f'; smallest change {100 * worst[0]:+.3f} points ({worst[1]})'
     return {'target': name, 'met': None if not compared else not drops, 'value': value}
