@@ -221,16 +221,20 @@ class StreamTracker(Revisions):
         or (-1, -1) for a new track. Candidates: the open tracks whose latest detection lies
         1 to 1 + max_skip stations upstream, and those whose latest detection lies up to that
         far downstream but that have no detection at d's station (stamps out of road order
-        under noise, or a miss filled in), predicted from their detection just upstream."""
+        under noise, or a miss filled in; not one that passed there more than the stamp
+        noise's gate before d), predicted from their detection just upstream."""
         p = self._params
         s = d.sensor
+        earliest = d.stamp - 6 * math.sqrt(2) * p.stamp_noise
         cands = []
         for j in range(max(0, s - 1 - p.max_skip), min(self.layout.n_sensors, s + 2 + p.max_skip)):
             for tid in self._tails[j] if j != s else ():
+                tail = self._dets[self._tail_of[tid][0]]
                 if j < s:
-                    prev = self._dets[self._tail_of[tid][0]]
-                    if prev.stamp < d.stamp:
-                        cands.append((tid, prev))
+                    if tail.stamp < d.stamp:
+                        cands.append((tid, tail))
+                    continue
+                if tail.stamp < earliest:
                     continue
                 members = [self._dets[k] for k in self._tracks[tid]]
                 if any(m.sensor == s for m in members):
