@@ -173,6 +173,7 @@ def plot_lag(out_dir: Path, lag: dict) -> str | None:
         ax.axhline(100 * rec['batch'], color=color, ls='--', lw=1, label=f'{family}: batch')
     ax.axvline(lag['default_lag'], color='grey', ls=':', lw=1)
     ax.set_xscale('log')
+    ax.xaxis.set_minor_formatter(plt.NullFormatter())
     ax.set_xticks(lag['lags'])
     ax.set_xticklabels([f'{x:g}' for x in lag['lags']])
     ax.set_xlabel('commit lag [s of stamp time]')
