@@ -12,6 +12,7 @@ switches back to stream.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from rclpy.node import Node
@@ -123,13 +124,12 @@ class ModeSwitch:
             seed=cfg.seed,
             max_buffered=cfg.max_buffered,
         )
-        logger = self._node.get_logger()
-
-        def log(level: str, text: str) -> None:
-            getattr(logger, level)(text)
+        log = leveled_log(self._node.get_logger())
+        context = self._node.context
 
         def publish(data: bytes) -> None:
-            self._publisher.publish(data)
+            if context.ok():  # after Ctrl-C the context is gone: nothing left to publish to
+                self._publisher.publish(data)
 
         self.stream = StreamMode(
             settings, cfg.bounds(), publish, log, on_reject=self._node._on_reject
@@ -164,3 +164,25 @@ class ModeSwitch:
     def close(self) -> None:
         if self.stream is not None:
             self.stream.close()
+
+
+def leveled_log(logger: Any) -> Callable[[str, str], None]:
+    """``log(level, text)`` for code that runs without ROS (the stream mode's threads).
+
+    rclpy refuses one call site that logs at several severities ("Logger severity cannot be
+    changed between calls"), so every level has its own call. A log line that comes after the
+    context was shut down (a thread finishing during Ctrl-C) is dropped, not raised.
+    """
+
+    def log(level: str, text: str) -> None:
+        try:
+            if level == 'error':
+                logger.error(text)
+            elif level == 'warning':
+                logger.warning(text)
+            else:
+                logger.info(text)
+        except Exception:  # noqa: BLE001 - rclpy's logging is gone with the context
+            pass
+
+    return log
