@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from mlkm_experiments.launch import Graph, ScoreCollector, domain
+from mlkm_experiments.launch import Graph, ScoreCollector, domain, start_association
 
 ROOT = Path(__file__).resolve().parents[1]
 NS_PER_S = 1_000_000_000
@@ -70,41 +70,12 @@ def start_stream_graph(
 ) -> None:
     """association_node and scorer_node in stream mode, then ``also``; returns once
     /mlkm/tracks is matched by the scorer and each of ``also``."""
-    graph.start(
-        'association_node',
-        'mlkm_assoc',
-        'association_node',
-        '--ros-args',
-        '-p',
-        'mode:=stream',
-        '-p',
-        f'stream_method:={method}',
-        '-p',
-        f'lag:={float(lag)}',
-    )
-    graph.start(
-        'scorer_node',
-        'mlkm_assoc',
-        'scorer_node',
-        '--ros-args',
-        '-p',
-        'mode:=stream',
-        '-p',
-        f'window:={float(window)}',
-    )
-    for spec in also:
-        graph.start(*spec)
-    node = collector.node
-    why = collector.spin_until(
-        lambda: (
-            node.count_publishers('/mlkm/tracks') >= 1
-            and node.count_subscribers('/mlkm/tracks') >= 1 + len(also)
-        ),
+    start_association(
+        graph, collector, method, *also,
+        association_params=('mode:=stream', f'stream_method:={method}', f'lag:={float(lag)}'),
+        scorer_params=('mode:=stream', f'window:={float(window)}'),
         timeout=60.0,
-        abort=graph.failed,
-    )
-    if why:
-        raise RuntimeError(f'graph did not come up: {why}')
+    )  # fmt: skip
 
 
 def latest_values(collector: ScoreCollector, name: str) -> dict[str, str]:

@@ -251,20 +251,23 @@ class Graph:
 
 
 def start_association(
-    graph: Graph, collector: ScoreCollector, method: str, *also: tuple[str, ...]
+    graph: Graph,
+    collector: ScoreCollector,
+    method: str,
+    *also: tuple[str, ...],
+    association_params: tuple[str, ...] = (),
+    scorer_params: tuple[str, ...] = (),
+    timeout: float = 30.0,
 ) -> None:
     """Start association_node and scorer_node, then ``also`` (each ``(name, package, exe,
     *args)``), and wait until /mlkm/tracks is matched by the scorer and each of ``also``, so
-    that no track update is published before its subscribers are there."""
-    graph.start(
-        'association_node',
-        'mlkm_assoc',
-        'association_node',
-        '--ros-args',
-        '-p',
-        f'method:={method}',
-    )
-    graph.start('scorer_node', 'mlkm_assoc', 'scorer_node')
+    that no track update is published before its subscribers are there.
+
+    ``association_params`` / ``scorer_params`` are further ``name:=value`` parameters (stream
+    mode, for example)."""
+    assoc = (f'method:={method}', *association_params)
+    graph.start('association_node', 'mlkm_assoc', 'association_node', *_ros_params(assoc))
+    graph.start('scorer_node', 'mlkm_assoc', 'scorer_node', *_ros_params(scorer_params))
     for spec in also:
         graph.start(*spec)
     node = collector.node
@@ -273,11 +276,16 @@ def start_association(
             node.count_publishers('/mlkm/tracks') >= 1
             and node.count_subscribers('/mlkm/tracks') >= 1 + len(also)
         ),
-        timeout=30.0,
+        timeout=timeout,
         abort=graph.failed,
     )
     if why:
         raise RuntimeError(f'graph did not come up: {why}')
+
+
+def _ros_params(params: tuple[str, ...]) -> list[str]:
+    """``--ros-args -p a:=1 -p b:=2`` for ('a:=1', 'b:=2'); nothing for no parameters."""
+    return ['--ros-args', *(arg for p in params for arg in ('-p', p))] if params else []
 
 
 class ScoreCollector:

@@ -133,7 +133,7 @@ def sequence_nll(
     """Kalman marginal NLL of each detection sequence (rows of ``seqs``, -1 = no detection).
 
     Columns are visited in order; a row's entries must have increasing sensors (gaps allowed).
-    Every further detection pays its innovation NLL, capped (beyond a squared Mahalanobis
+    Every further detection pays its innovation NLL, capped (past a squared Mahalanobis
     distance of 4 gates, so that a few wrong links do not dominate), plus the miss cost per
     skipped sensor, as in the forward pass. A sequence flagged ``birth`` (the track starts
     here) pays the new-track cost and, if it has two detections or more, the miss cost of every
