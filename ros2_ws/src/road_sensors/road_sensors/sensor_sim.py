@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 
 from mlkm_core.simulator import (
@@ -181,6 +182,11 @@ def main(args: list[str] | None = None) -> int:
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:
+        # The publishing thread (done, or stopped by Ctrl-C) shut the context down while the
+        # executor was building its wait set: an end of the run, not an error.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.stop()  # first: the thread must not report an interruption as an error

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 
 from mlkm_ros import conversions as conv
@@ -214,6 +215,11 @@ def main(args: list[str] | None = None) -> int:
         error, code = str(exc), EXIT_SUMO
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:
+        # The publishing thread (done, or stopped by Ctrl-C) shut the context down while the
+        # executor was building its wait set: an end of the run, not an error.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.stop()  # first: the thread must not report an interruption as an error
