@@ -32,19 +32,27 @@ import numpy as np
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.linking import link, merge_double_reports, relabel
+from mlkm_core.associators.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
 
 @register
 class AssignmentAssociator(Associator):
     name = 'assignment'
+    calibrates = True
 
-    def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
+    def associate(
+        self,
+        layout: Layout,
+        detections: Detections,
+        n_targets: int,
+        motion: MotionParams | None = None,
+    ) -> np.ndarray:
         order = canonical_order(detections)
         d = detections.subset(order)
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d):
-            params = estimate_params(layout, d)
+            params = motion if motion is not None else estimate_params(layout, d)
             raw = link(layout, d, params, 'pairwise')
             out[order] = relabel(merge_double_reports(d, raw, params))
         return out

@@ -90,6 +90,10 @@ class Associator(ABC):
     """Base class: a name, a config, a batch ``associate`` and an incremental ``session``."""
 
     name: ClassVar[str]
+    #: ``associate`` takes ``motion=``: motion parameters calibrated elsewhere, bound to its
+    #: input in canonical order (``calibration.CarriedModel.bind``), used instead of
+    #: calibrating on the input (the stream tracker calibrates once every few windows)
+    calibrates: ClassVar[bool] = False
 
     def __init__(self, config: AssociatorConfig | None = None) -> None:
         self.config = config or AssociatorConfig()

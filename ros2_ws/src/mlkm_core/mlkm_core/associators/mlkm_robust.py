@@ -184,6 +184,7 @@ def correct_by_assignment(
 @register
 class RobustMLKM(Associator):
     name = 'mlkm_robust'
+    calibrates = True
 
     def solve_segment(
         self,
@@ -203,13 +204,19 @@ class RobustMLKM(Associator):
         labels = correct_by_assignment(layout.positions, d, labels, flagged, p, glob)
         return np.unique(labels, return_inverse=True)[1].reshape(-1)
 
-    def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
+    def associate(
+        self,
+        layout: Layout,
+        detections: Detections,
+        n_targets: int,
+        motion: MotionParams | None = None,
+    ) -> np.ndarray:
         order = canonical_order(detections)
         d = detections.subset(order)
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d) == 0:
             return out
-        p = estimate_params(layout, d)
+        p = motion if motion is not None else estimate_params(layout, d)
         pos = layout.positions
         u = 1.0 / d.velocity
         track = np.full(len(d), -1, dtype=np.int64)

@@ -98,14 +98,21 @@ def kalman_fits(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
 @register
 class MultiFrameAssociator(Associator):
     name = 'multiframe'
+    calibrates = True
 
-    def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
+    def associate(
+        self,
+        layout: Layout,
+        detections: Detections,
+        n_targets: int,
+        motion: MotionParams | None = None,
+    ) -> np.ndarray:
         order = canonical_order(detections)
         d = detections.subset(order)
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d) == 0:
             return out
-        params = estimate_params(layout, d)
+        params = motion if motion is not None else estimate_params(layout, d)
         openings = MotionParams.road_openings(
             layout.positions, self.config.entries, self.config.exits
         )

@@ -3,12 +3,19 @@ calibration on the stream's history (pairwise model, ``mlkm_core.associators.mot
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
 
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.associators.motion import (
+    FLOOR_T,
+    FLOOR_V,
+    LOG2PI,
+    MotionParams,
+    PairwiseModel,
+)
 from mlkm_core.types import Detections, Layout
 
 #: fewest detections the motion model is calibrated on (below, the last estimate is kept)
@@ -28,27 +35,69 @@ def _model(p: MotionParams, layout: Layout, sensor, stamp, velocity) -> Pairwise
     return model
 
 
-def link_weights(
-    p: MotionParams,
-    layout: Layout,
-    tails: tuple[list[int], list[float], list[float]],
-    sensor: int,
-    stamp: float,
-    velocity: float,
-    birth: float,
-) -> np.ndarray:
-    """Weight of linking a detection to each track ending on ``tails`` (sensors, stamps,
-    speeds): the pairwise NLL plus the miss cost of skipped stations, minus the cost of the
-    alternatives (a miss, and a birth costing ``birth``); < 0 is worth linking, inf outside
-    the gate."""
-    n = len(tails[0])
-    model = _model(p, layout, *tails)
-    pred = model.predict(np.arange(n), float(layout.positions[sensor]))
-    with np.errstate(all='ignore'):
-        nll, d2 = model.cost(pred, np.full(n, stamp), np.full(n, 1.0 / velocity))
-    skipped = sensor - 1 - np.asarray(tails[0])
-    w = nll + skipped * p.miss_cost - p.miss_cost - birth
-    return np.where((d2 <= p.gate) & np.isfinite(w), w, np.inf)
+class LinkCost:
+    """The pairwise model's weight of one link, in plain floats (``PairwiseModel.cost`` for a
+    single pair: the immediate link scores a handful of candidates per detection, where
+    numpy's per-call cost would dominate)."""
+
+    def __init__(self, p: MotionParams, layout: Layout) -> None:
+        self.p = p
+        self.positions = [float(x) for x in layout.positions]
+        self.noise_t2 = 2 * max(p.stamp_noise, FLOOR_T) ** 2
+        self.noise_v = max(p.velocity_noise, FLOOR_V)
+        self.delay = None
+        if p.delay is not None:
+            self.delay = ([float(x) for x in p.delay[0]], [float(c) for c in p.delay[1]])
+
+    def _extra(self, x1: float, x2: float) -> float:
+        if self.delay is None:
+            return 0.0
+        pos, cum = self.delay
+        top = len(pos) - 1
+        k1 = min(max(bisect.bisect_right(pos, x1) - 1, 0), top)
+        k2 = min(max(bisect.bisect_right(pos, x2) - 1, 0), top)
+        return cum[k2] - cum[k1]
+
+    def weight(
+        self,
+        tail: tuple[int, float, float],
+        sensor: int,
+        stamp: float,
+        velocity: float,
+        birth: float,
+    ) -> float:
+        """Weight of linking a detection (sensor, stamp, velocity) to a track whose latest
+        detection is ``tail`` (sensor, stamp, velocity): the pairwise NLL plus the miss cost
+        of skipped stations, minus the cost of the alternatives (a miss, and a birth costing
+        ``birth``); < 0 is worth linking, inf outside the gate."""
+        p = self.p
+        x1, x2 = self.positions[tail[0]], self.positions[sensor]
+        dx = x2 - x1
+        u1, u = 1.0 / tail[2], 1.0 / velocity
+        su2 = (p.sigma * u1 * u) ** 2
+        vn1, vn2 = (self.noise_v * u1 * u1) ** 2, (self.noise_v * u * u) ** 2
+        e_t = stamp - tail[1] - dx * (u1 + u) / 2 - self._extra(x1, x2)
+        var_t = self.noise_t2 + dx * dx * (vn1 + vn2) / 4 + su2 * dx**3 / (6 * p.length)
+        e_u = u - u1
+        var_u = vn1 + vn2 + 2 * su2 * (1 - math.exp(-dx / p.length))
+        try:
+            d2 = e_t * e_t / var_t + e_u * e_u / var_u
+            nll = 0.5 * (d2 + math.log(var_t * var_u)) + LOG2PI
+            if p.jump_rate > 0:
+                vj = (p.jump_sigma * u1 * u) ** 2
+                vt1, vu1 = var_t + vj * dx * dx / 12, var_u + vj
+                d21 = e_t * e_t / vt1 + e_u * e_u / vu1
+                nll1 = 0.5 * (d21 + math.log(vt1 * vu1)) + LOG2PI
+                pj = -math.expm1(-p.jump_rate * dx)
+                a = math.log1p(-pj) - nll if pj < 1 else -math.inf
+                b = math.log(pj) - nll1 if pj > 0 else -math.inf
+                top = max(a, b)
+                nll = -(top + math.log(math.exp(a - top) + math.exp(b - top)))
+                d2 = min(d2, d21)
+        except (ValueError, ZeroDivisionError, OverflowError):
+            return math.inf
+        w = nll + (sensor - 1 - tail[0]) * p.miss_cost - p.miss_cost - birth
+        return w if d2 <= p.gate and math.isfinite(w) else math.inf
 
 
 def overdue_at(

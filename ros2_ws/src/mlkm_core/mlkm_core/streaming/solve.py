@@ -5,21 +5,54 @@ method's name and settings), ``solve`` turns it into a ``WindowSolution`` anywhe
 caller, a thread, another process) and the tracker applies the solution at its boundary.
 ``solve`` is a function of the problem alone, so where and when it runs never changes the
 committed association.
+
+Calibration is the costliest part of a solve (about two thirds of a ``multiframe`` window in
+free flow), and traffic changes slowly: a window of a method that calibrates its motion model
+on its input (``Associator.calibrates``) either calibrates (and returns the model as a
+``CarriedModel``) or is given the model of the last calibrating window, carried over to its
+own detections. A model that learnt the order of passage within lanes (a queue) is bound to
+the detections it was learnt on and is not carried: the next window calibrates again.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from mlkm_core.associators import make_associator
-from mlkm_core.associators.base import AssociatorConfig
+from mlkm_core.associators.attributes import AttributeParams, Attributes
+from mlkm_core.associators.base import AssociatorConfig, canonical_order
+from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.motion import MotionParams
-from mlkm_core.streaming.motion import calibrate_on
+from mlkm_core.streaming.motion import MIN_CALIBRATION, calibrate_on
 from mlkm_core.streaming.window import solve_window
 from mlkm_core.types import Detections, Layout
+
+
+@dataclass(frozen=True)
+class CarriedModel:
+    """A method's calibrated motion model, free of the detections it was calibrated on."""
+
+    params: MotionParams  # attributes None
+    attributes: AttributeParams | None  # lane and length parameters (None: not used)
+    reusable: bool  # False: it holds a lane order learnt from its own detections
+
+    @staticmethod
+    def of(params: MotionParams) -> CarriedModel:
+        att = params.attributes
+        return CarriedModel(
+            replace(params, attributes=None),
+            None if att is None else att.params,
+            att is None or att.order is None,
+        )
+
+    def bind(self, layout: Layout, d: Detections) -> MotionParams:
+        """The model for the detections ``d`` (in the order the associator will use)."""
+        if self.attributes is None:
+            return self.params
+        return replace(self.params, attributes=Attributes(layout, d, self.attributes))
 
 
 @dataclass(frozen=True)
@@ -31,6 +64,9 @@ class WindowProblem:
     layout: Layout
     detections: Detections  # context, anchors, then the window (canonical order each)
     calibration: np.ndarray | None  # (n, 3) rows (sensor, stamp, speed): recalibrate on them
+    # a method that calibrates: None = calibrate on the detections (the solution returns the
+    # model), else the model to carry over
+    model: CarriedModel | None = None
 
 
 @dataclass(frozen=True)
@@ -39,6 +75,7 @@ class WindowSolution:
     degraded: int  # degraded-result warnings of the method
     failed: bool  # the method could not associate the window (generic assignment instead)
     params: MotionParams | None  # the recalibrated motion model (None: keep the current one)
+    model: CarriedModel | None = None  # the method's model, when this solve calibrated it
 
 
 _ASSOCIATORS: dict[tuple[str, AssociatorConfig], Any] = {}
@@ -53,8 +90,23 @@ def solve(problem: WindowProblem) -> WindowSolution:
     params = None
     if problem.calibration is not None:
         params = calibrate_on(problem.layout, problem.calibration)
-    labels, degraded, failed = solve_window(associator, problem.layout, problem.detections)
-    return WindowSolution(labels, degraded, failed, params)
+    layout, d = problem.layout, problem.detections
+    motion, model = None, None
+    if associator.calibrates and len(d):
+        # the associator's own canonical order, in which its model is bound
+        ordered = d.subset(canonical_order(d))
+        if problem.model is None:
+            try:
+                motion = estimate_params(layout, ordered)
+            except ValueError:
+                motion = None  # solve_window replaces the method for this window
+            # a model calibrated on too few detections is used for this window only
+            if motion is not None and len(ordered) >= MIN_CALIBRATION:
+                model = CarriedModel.of(motion)
+        else:
+            motion = problem.model.bind(layout, ordered)
+    labels, degraded, failed = solve_window(associator, layout, d, motion)
+    return WindowSolution(labels, degraded, failed, params, model)
 
 
 class InlineExecutor:

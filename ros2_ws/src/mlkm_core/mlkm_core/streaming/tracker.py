@@ -16,14 +16,16 @@ from mlkm_core.streaming.config import (
     StreamConfig,
     StreamUpdate,
 )
-from mlkm_core.streaming.motion import link_weights
+from mlkm_core.streaming.motion import LinkCost
 from mlkm_core.streaming.revise import Revisions
-from mlkm_core.streaming.solve import WindowProblem, WindowSolution, solve
+from mlkm_core.streaming.solve import CarriedModel, WindowProblem, WindowSolution, solve
 from mlkm_core.streaming.window import owners
 from mlkm_core.types import UNKNOWN_LANE, Layout
 
-#: methods given the detections of recently ended tracks as context (they calibrate their
-#: motion model on their input; the K-means methods would cluster the context too)
+#: methods that calibrate their motion model on their input (``Associator.calibrates``): their
+#: calibrating windows get the detections of recently ended tracks as context (the K-means
+#: methods would cluster the context too), the windows in between the model carried over, and
+#: the immediate link uses the same model
 CONTEXT_METHODS = ('assignment', 'multiframe', 'mlkm_robust')
 #: ``anchor_track`` of a context row in a window solve
 CONTEXT = -2
@@ -91,6 +93,8 @@ class StreamTracker(Revisions):
         self._history: deque = deque(maxlen=config.calibration_size)
         self._params = MotionParams()
         self._calibrated_at: int | None = None
+        self._model: CarriedModel | None = None  # the method's, from its last calibrating solve
+        self._cost: LinkCost | None = None  # the immediate link's cost under _params
         self._next_k: int | None = None
         self._solved = False
         self._newest = -math.inf
@@ -224,31 +228,36 @@ class StreamTracker(Revisions):
         under noise, or a miss filled in; not one that passed there more than the stamp
         noise's gate before d), predicted from their detection just upstream."""
         p = self._params
+        if self._cost is None or self._cost.p is not p:
+            self._cost = LinkCost(p, self.layout)
+        weight = self._cost.weight
         s = d.sensor
         earliest = d.stamp - 6 * math.sqrt(2) * p.stamp_noise
-        cands = []
-        for j in range(max(0, s - 1 - p.max_skip), min(self.layout.n_sensors, s + 2 + p.max_skip)):
-            for tid in self._tails[j] if j != s else ():
-                tail = self._dets[self._tail_of[tid][0]]
-                if j < s:
-                    if tail.stamp < d.stamp:
-                        cands.append((tid, tail))
-                    continue
-                if tail.stamp < earliest:
-                    continue
-                members = [self._dets[k] for k in self._tracks[tid]]
-                if any(m.sensor == s for m in members):
-                    continue
-                up = [m for m in members if m.sensor < s]
-                if up:
-                    cands.append((tid, max(up, key=lambda m: (m.sensor, m.stamp))))
-        if not cands:
-            return -1, -1
-        tails = tuple([getattr(t, f) for _, t in cands] for f in ('sensor', 'stamp', 'velocity'))
         birth = p.miss_cost if self._after_entry[s] else p.new_cost
-        w = link_weights(p, self.layout, tails, s, d.stamp, d.velocity, birth)
-        best = int(np.argmin(w))
-        return (cands[best][0], cands[best][1].key) if w[best] < 0 else (-1, -1)
+        best, best_w = (-1, -1), 0.0
+        dets = self._dets
+        for j in range(max(0, s - 1 - p.max_skip), min(self.layout.n_sensors, s + 2 + p.max_skip)):
+            if j == s:
+                continue
+            for tid in self._tails[j]:
+                tail = dets[self._tail_of[tid][0]]
+                if j < s:
+                    if tail.stamp >= d.stamp:
+                        continue
+                else:
+                    if tail.stamp < earliest:
+                        continue
+                    members = [dets[k] for k in self._tracks[tid]]
+                    if any(m.sensor == s for m in members):
+                        continue
+                    up = [m for m in members if m.sensor < s]
+                    if not up:
+                        continue
+                    tail = max(up, key=lambda m: (m.sensor, m.stamp))
+                w = weight((tail.sensor, tail.stamp, tail.velocity), s, d.stamp, d.velocity, birth)
+                if w < best_w:  # the cheapest (the first of equals), if cheaper than none
+                    best, best_w = (tid, tail.key), w
+        return best
 
     # ----------------------------------------------------------------- revision and commit
     def _advance(self, wait: bool = False) -> None:
@@ -344,18 +353,33 @@ class StreamTracker(Revisions):
         if not window:
             return prepared
         anchors = sorted(self._anchors(), key=lambda a: canon(a[0]))
-        context = [e[2] for e in self._context] if c.method in CONTEXT_METHODS else []
+        calibrates = c.method in CONTEXT_METHODS
+        carry = (
+            calibrates
+            and not final
+            and self._model is not None
+            and self._model.reusable
+            and k - self._calibrated_at < c.calibration_every
+        )
+        context = [e[2] for e in self._context] if calibrates and not carry else []
         anchors = [(d, CONTEXT, False) for d in context] + anchors
         rows = [a[0] for a in anchors] + window
         calibration = None
-        if not final and (
-            self._calibrated_at is None or k - self._calibrated_at >= c.calibration_every
+        if (
+            not calibrates
+            and not final
+            and (self._calibrated_at is None or k - self._calibrated_at >= c.calibration_every)
         ):
             calibration = np.array(
                 list(self._history) + [(d.sensor, d.stamp, d.velocity) for d in window], float
             ).reshape(-1, 3)
         prepared.problem = WindowProblem(
-            c.method, c.associator_config(), self.layout, as_detections(rows), calibration
+            c.method,
+            c.associator_config(),
+            self.layout,
+            as_detections(rows),
+            calibration,
+            self._model if carry else None,
         )
         prepared.n_anchors = len(anchors)
         prepared.anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)
@@ -379,6 +403,10 @@ class StreamTracker(Revisions):
             self._stats['failed_solves'] += solution.failed
             if solution.params is not None:
                 self._params, self._calibrated_at = solution.params, p.k
+            if solution.model is not None:
+                # the method's model also drives the immediate link and the ends of tracks
+                self._model, self._params = solution.model, solution.model.params
+                self._calibrated_at = p.k
             slack = 6 * math.sqrt(2) * self._params.stamp_noise
             d = p.problem.detections
             own, groups = owners(

@@ -23,19 +23,22 @@ from mlkm_core.types import Detections, Layout
 
 
 def solve_window(
-    associator: Associator, layout: Layout, d: Detections
+    associator: Associator, layout: Layout, d: Detections, motion: MotionParams | None = None
 ) -> tuple[np.ndarray, int, bool]:
     """(cluster of each detection of ``d``, -1 = alone; degraded-result warnings; failed).
 
-    A method that cannot associate the window (ValueError) is replaced by the sequential
-    assignment with generic parameters for that window (``failed`` True).
+    ``motion``: the model a calibrating associator uses instead of calibrating on ``d``
+    (bound to ``d`` in canonical order). A method that cannot associate the window
+    (ValueError) is replaced by the sequential assignment with generic parameters for that
+    window (``failed`` True).
     """
+    extra = {} if motion is None else {'motion': motion}
     n_targets = int(np.bincount(d.sensor_index).max()) if len(d) else 1
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always', DegradedResultWarning)
         try:
             return (
-                np.asarray(associator.associate(layout, d, n_targets), np.int64),
+                np.asarray(associator.associate(layout, d, n_targets, **extra), np.int64),
                 sum(issubclass(w.category, DegradedResultWarning) for w in caught),
                 False,
             )

@@ -1,0 +1,102 @@
+"""The streaming tracker's cheap paths: the scalar link cost and the calibration carried
+from one window solve to the next (no ROS)."""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+import mlkm_core.streaming.solve as solve_module
+from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.metrics import accuracy
+from mlkm_core.simulator import SimConfig, simulate
+from mlkm_core.streaming import StreamConfig, StreamTracker
+from mlkm_core.streaming.motion import LinkCost
+from mlkm_core.streaming.solve import CarriedModel, WindowProblem, solve
+from mlkm_core.types import Layout
+
+CLUTTER = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2, velocity_noise=0.5)
+
+
+def pairwise_weight(p, layout, a, t1, v1, b, t2, v2, birth):
+    """The link weight through the vectorised pairwise model (the batch methods' cost)."""
+    m = PairwiseModel(p)
+    m.grow(1)
+    m.start(np.arange(1), layout.positions[[a]], np.array([t1]), np.array([1 / v1]))
+    pred = m.predict(np.arange(1), float(layout.positions[b]))
+    with np.errstate(all='ignore'):
+        nll, d2 = m.cost(pred, np.array([t2]), np.array([1 / v2]))
+    w = nll + (b - 1 - a) * p.miss_cost - p.miss_cost - birth
+    return float(np.where((d2 <= p.gate) & np.isfinite(w), w, np.inf)[0])
+
+
+def test_link_cost_equals_the_pairwise_model():
+    rng = np.random.default_rng(0)
+    layout = Layout(2000.0, np.sort(rng.uniform(0, 2000, 12)))
+    delay = (layout.positions.copy(), np.concatenate([[0.0], np.cumsum(rng.uniform(0, 3, 11))]))
+    for p in (
+        MotionParams(),
+        replace(MotionParams(), jump_rate=0.002, stamp_noise=0.3),
+        replace(MotionParams(), delay=delay),
+    ):
+        cost = LinkCost(p, layout)
+        gated = 0
+        for _ in range(500):
+            a = int(rng.integers(0, 10))
+            b = a + int(rng.integers(1, 3))
+            t1, v1, v2 = rng.uniform(0, 100), rng.uniform(10, 35), rng.uniform(10, 35)
+            t2 = t1 + (layout.positions[b] - layout.positions[a]) / v1 + rng.normal(0, 2)
+            want = pairwise_weight(p, layout, a, t1, v1, b, t2, v2, 3.0)
+            got = cost.weight((a, t1, v1), b, t2, v2, 3.0)
+            if math.isinf(want):
+                assert math.isinf(got)
+                gated += 1
+            else:
+                assert abs(got - want) <= 1e-9 * max(1.0, abs(want))
+        assert 0 < gated < 500  # both sides of the gate were exercised
+
+
+def test_a_carried_model_gives_the_calibrating_solve_its_own_result():
+    ds = simulate(SimConfig(n_targets=30, n_sensors=10, **CLUTTER), 3)
+    problem = WindowProblem(
+        'multiframe', StreamConfig().associator_config(), ds.layout, ds.detections, None
+    )
+    first = solve(problem)
+    assert first.model is not None and first.model.reusable
+    again = solve(replace(problem, model=first.model))
+    assert again.model is None  # a carried model is not recalibrated
+    np.testing.assert_array_equal(again.labels, first.labels)
+    assert accuracy(first.labels, ds.detections.target).accuracy > 0.95
+
+
+def test_the_stream_calibrates_once_every_calibration_every_windows(monkeypatch):
+    """multiframe on a long clutter stream: the method's model is estimated at the first
+    window with enough detections and then once every ``calibration_every`` windows; the
+    windows in between get it carried over, without the context, and the commits stay as
+    accurate as batch."""
+    calls = []
+    estimate = solve_module.estimate_params
+
+    def counting(layout, d):
+        calls.append(len(d))
+        return estimate(layout, d)
+
+    monkeypatch.setattr(solve_module, 'estimate_params', counting)
+    ds = simulate(SimConfig(n_targets=50, n_sensors=20, **CLUTTER), 0)
+    d = ds.detections
+    config = StreamConfig(calibration_every=3)
+    tracker = StreamTracker(ds.layout, config)
+    labels = np.full(len(d), -1)
+    for k in np.lexsort((d.sensor_index, d.stamp)).tolist():
+        u = tracker.push(k, int(d.sensor_index[k]), float(d.stamp[k]), float(d.velocity[k]))
+        for key, track in u.committed.tolist():
+            labels[key] = track
+    solves_before_flush = tracker.stats()['solves']
+    for key, track in tracker.flush().committed.tolist():
+        labels[key] = track
+    window_calls = len(calls) - 1  # the flush calibrates on its window
+    assert solves_before_flush >= 9
+    assert window_calls <= math.ceil(solves_before_flush / 3) + 1
+    assert isinstance(tracker._model, CarriedModel)
+    assert tracker.params is tracker._model.params  # the immediate link uses it too
+    assert accuracy(labels, d.target).accuracy >= 0.99
