@@ -16,6 +16,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from mlkm_assoc.association_node import AssociationNode
 from mlkm_core.types import Layout
@@ -199,6 +200,30 @@ def test_stream_without_episode_info_gets_final_tracks(harness) -> None:
         assert d[f'rejected.{reason}'] == '1', reason
     assert d['stream.detections_held'] == '0'
     assert float(d['stream.latency_p95']) >= 0.0 and d['stream.latency_count'] == '12'
+    # the latency's parts (node -> tracker queue, reorder hold, tracker, publication) are
+    # each shorter than the whole
+    for part in ('queue', 'hold', 'tracker', 'publish'):
+        assert 0.0 <= float(d[f'stream.latency_{part}_p50']) <= float(d['stream.latency_max'])
+    assert d['incompatible_publishers'] == '0'
+
+
+def test_publishers_that_cannot_reach_the_node_are_reported(harness) -> None:
+    """The detection subscriptions carry no QoS event handlers; the node finds the best-effort
+    publishers on two sensor topics (its subscriptions are reliable) from the graph, and
+    reports each once."""
+    h = harness(mode='stream')
+    h.start()
+    best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+    for name in NAMES[:2]:
+        h.test.create_publisher(Detection, qos.detections_topic(name), best_effort)
+    h.wait(lambda: h.diag.get('incompatible_publishers') == '2')
+    h.spin_until(h.executor, lambda: False, 2.5)  # the graph is looked at again: no repeats
+    assert h.diag['incompatible_publishers'] == '2'
+
+    # the good publishers still deliver
+    s, ns, v, _, lane, length = passages()[0]
+    h.detect(s, ns, v, lane, length)
+    h.wait(lambda: len(h.latest()) == 1)
 
 
 def test_auto_switches_to_episodes_when_an_episode_publisher_appears(harness) -> None:

@@ -67,10 +67,12 @@ def test_a_backlog_larger_than_a_batch_loses_nothing() -> None:
 
 
 def test_round_robin_backlog_comes_out_in_stamp_order() -> None:
-    """Three topics with a backlog, taken one message per topic in turn: the downstream
-    topic's detections arrive up to 10 s (stamp) ahead; the buffer releases stamp order."""
+    """Three topics with a backlog, taken one message per topic in turn: vehicles every 2 s,
+    10 s of travel between stations, so the i-th message of the downstream topic is stamped
+    up to 20 s after the upstream one's; the buffer holds the ahead ones and releases stamp
+    order."""
     buf = ReorderBuffer(3, margin=0.5, wait=0.05, max_hold=1.0)
-    per_topic = [[10.0 * i + 5.0 * s for i in range(20)] for s in range(3)]
+    per_topic = [[2.0 * i + 10.0 * s for i in range(20)] for s in range(3)]
     out, now = [], 0.0
     for i in range(20):
         for s in range(3):
@@ -78,11 +80,30 @@ def test_round_robin_backlog_comes_out_in_stamp_order() -> None:
             buf.add((per_topic[s][i], s), s, per_topic[s][i], now)
             out.extend(buf.release(now))
     assert len(out) < 60  # the last ones wait for the slow topics...
+    assert [x[0] for x in out] == sorted(x[0] for x in out)
     now += 0.1  # ...until every topic has been quiet for `wait`
     out.extend(buf.release(now))
     stamps = [x[0] for x in out]
     assert len(out) == 60 and stamps == sorted(stamps)
     assert buf.released_by_timeout == 0
+
+
+def test_paced_topics_pass_at_once() -> None:
+    """Three topics delivering in stamp order at 50 times real time (a detection every 0.3 s
+    of stamp time, 6 ms of wall time): once each topic has delivered twice (its first
+    detection cannot tell whether it lags), nothing is held."""
+    buf = ReorderBuffer(3, margin=0.5, wait=0.05, max_hold=1.0)
+    out = []
+    for i in range(60):
+        stamp = 0.3 * i
+        now = stamp / 50.0
+        buf.add((stamp, i % 3), i % 3, stamp, now)
+        released = [x[0] for x in buf.release(now)]
+        out += released
+        if i >= 6:
+            assert released == [stamp]
+    assert out == [0.3 * i for i in range(60)]
+    assert len(buf) == 0 and buf.released_by_timeout == 0
 
 
 def test_window_solves_beside_the_tracker_commit_as_the_core_tracker() -> None:

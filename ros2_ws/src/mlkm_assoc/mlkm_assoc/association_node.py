@@ -34,6 +34,7 @@ from mlkm_assoc.solver import SolverProcess
 from mlkm_core.associators.base import AssociatorConfig
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
+from mlkm_ros.endpoints import PublisherCheck, no_events
 from mlkm_ros.params import ParameterError, declare_parameters
 from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
 
@@ -78,6 +79,7 @@ class AssociationNode(Node):
         self._finals_published: int = 0
         self._diagnostics_due: bool = False
         self._det_subs: dict[str, Subscription] = {}
+        self._publisher_check = PublisherCheck(self, DETECTION_TYPE, qos.DETECTIONS_QOS)
         self._prefix_re = re.compile(
             '^'
             + re.escape(self.resolve_topic_name(qos.DETECTIONS_PREFIX))
@@ -174,7 +176,11 @@ class AssociationNode(Node):
     def _subscribe(self, topic: str) -> None:
         if topic not in self._det_subs:
             self._det_subs[topic] = self.create_subscription(
-                Detection, topic, self._on_detection, qos.DETECTIONS_QOS
+                Detection,
+                topic,
+                self._on_detection,
+                qos.DETECTIONS_QOS,
+                event_callbacks=no_events(),
             )
 
     def _on_detection(self, msg: Detection) -> None:
@@ -221,6 +227,7 @@ class AssociationNode(Node):
     def _on_tick(self) -> None:
         self._assembler.tick(time.monotonic())
         self._modes.tick(time.monotonic())
+        self._publisher_check.check(list(self._det_subs))
         if self._diagnostics_due:
             self._diagnostics_due = False
             self.publish_diagnostics()
@@ -302,6 +309,7 @@ class AssociationNode(Node):
         values['track_updates_published'] = self._tracks_published
         values['episodes_published'] = self._finals_published
         values['solver_errors'] = self._solver_errors
+        values['incompatible_publishers'] = self._publisher_check.incompatible
         values['solver_error_last'] = self._last_error
         solve, lat = list(self._solve_times), list(self._latencies)
         values['solve_time_last'] = f'{solve[-1]:.6f}' if solve else ''

@@ -28,6 +28,8 @@ MODES = ('auto', 'episodes', 'stream')
 #: Period of the clock ticks stream mode's reorder buffer runs on while nothing arrives [s].
 CLOCK_PERIOD = 0.02
 EPISODES, STREAM = 'episodes', 'stream'
+#: Longest wait for the tracker process at the start of a node in stream mode [s].
+READY_TIMEOUT = 60.0
 
 
 class ModeSwitch:
@@ -47,7 +49,19 @@ class ModeSwitch:
         self.stream: StreamMode | None = None
         self.switches = 0
         if self.mode == STREAM:
+            # subscribe only once the tracker process is warm: detections arriving while it
+            # starts (a second or two of imports) would all wait for it
             self._start_stream()
+            t0 = time.monotonic()
+            if self.stream.wait_ready(READY_TIMEOUT):
+                node.get_logger().info(
+                    f'stream mode: tracker ready after {time.monotonic() - t0:.1f} s'
+                )
+            else:
+                node.get_logger().warning(
+                    f'stream mode: the tracker process is not ready after {READY_TIMEOUT:g} s;'
+                    ' detections wait for it'
+                )
 
     # --- inputs from the node -------------------------------------------------------------
     def layout(self, msg: SensorLayout, layout, lane_counts) -> None:

@@ -7,9 +7,13 @@ time ahead of the upstream ones. The tracker only tolerates a small reordering, 
 buffer holds a detection while some sensor is still draining older ones (ROS-free):
 
 * a sensor *blocks* a detection stamped ``t`` when its latest detection is stamped before
-  ``t - margin`` and arrived less than ``wait`` seconds (wall time) ago: its topic is busy
-  and may still hold older detections. A sensor that has been quiet for ``wait`` seconds has
-  nothing older in flight; a sensor that has sent nothing yet counts as heard at the first
+  ``t - margin``, arrived less than ``wait`` seconds (wall time) ago, and lagged behind the
+  newest stamp seen by more than ``margin`` when it arrived: its topic is busy draining a
+  backlog and may still hold older detections. A sensor that has been quiet for ``wait``
+  seconds has nothing older in flight; one that was in step with the others when it last
+  delivered (a source paced in real time, or faster) has nothing older either. A sensor
+  counts as lagging until its second detection (its first tells nothing: the others may be
+  ahead of it already), and one that has sent nothing yet counts as heard at the first
   detection (so the first ones wait ``wait`` for the other topics to start);
 * the oldest held detection is released when no sensor blocks it, or after ``max_hold``
   seconds whatever happens.
@@ -18,9 +22,9 @@ Times are the receiving node's clock (arrival times, and its ticks while nothing
 never the clock of whoever reads the buffer: a reader that fell behind, or a node whose
 executor stalled, does not make a busy topic look quiet.
 
-At real time every topic is caught up, no sensor lags by ``margin``, and a detection passes
-at once (a source faster than real time may see detections held up to ``wait``);
-reordering smaller than ``margin`` is left to the tracker's own tolerance (1 s).
+At real time, or at any pace the node keeps up with, every topic is in step, no sensor lags
+by ``margin``, and a detection passes at once; reordering smaller than ``margin`` is left to
+the tracker's own tolerance (1 s).
 """
 
 from __future__ import annotations
@@ -39,6 +43,9 @@ class ReorderBuffer:
         self.max_hold = max_hold  # [s] wall time
         self._last_stamp = [-math.inf] * n_sensors
         self._last_rx = [-math.inf] * n_sensors
+        self._lagging = [True] * n_sensors  # behind the newest stamp at its last arrival
+        self._heard = [False] * n_sensors
+        self._newest = -math.inf
         self._heap: list[tuple[float, int, float, Any]] = []
         self._seq = 0
         self._started = False
@@ -53,6 +60,9 @@ class ReorderBuffer:
             self._last_rx = [rx] * len(self._last_rx)
         if stamp >= self._last_stamp[sensor]:
             self._last_stamp[sensor] = stamp
+            self._lagging[sensor] = not self._heard[sensor] or stamp < self._newest - self.margin
+            self._heard[sensor] = True
+        self._newest = max(self._newest, stamp)
         self._last_rx[sensor] = max(self._last_rx[sensor], rx)
         heapq.heappush(self._heap, (stamp, self._seq, rx, item))
         self._seq += 1
@@ -62,7 +72,11 @@ class ReorderBuffer:
         heap = self._heap
         if not heap:
             return []
-        busy = [st for st, rx in zip(self._last_stamp, self._last_rx) if now - rx < self.wait]
+        busy = [
+            st
+            for st, rx, lagging in zip(self._last_stamp, self._last_rx, self._lagging)
+            if lagging and now - rx < self.wait
+        ]
         floor = (min(busy) if busy else math.inf) + self.margin
         out = []
         while heap:

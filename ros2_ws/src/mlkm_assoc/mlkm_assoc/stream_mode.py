@@ -16,11 +16,14 @@ it is known.
 from __future__ import annotations
 
 import math
+import sys
 import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
+
+import numpy as np
 
 from mlkm_assoc.stream_worker import Answer, TrackerProcess, TrackerSettings
 from mlkm_core.bounds import REASONS as BOUNDS_REASONS
@@ -32,6 +35,11 @@ STATS_WINDOW = 10_000
 #: Tolerance between a detection's position and its sensor's layout position [m].
 POSITION_TOLERANCE = 1e-3
 NS_PER_S = 1_000_000_000
+#: Longest time a thread of the node holds the GIL while another one waits for it [s].
+SWITCH_INTERVAL = 0.001
+#: Parts of a detection's latency: queued from the node to the tracker process, held in the
+#: reorder buffer, in the tracker until its answer is sent, from then to the publication.
+LATENCY_PARTS = ('queue', 'hold', 'tracker', 'publish')
 #: Reasons a detection is rejected in stream mode (a subset of episodes mode's).
 REJECT_REASONS = (
     *BOUNDS_REASONS,
@@ -197,6 +205,9 @@ class StreamMode:
         on_reject: Callable[[str, str], None] | None = None,
     ) -> None:
         self.settings = settings
+        # the executor thread takes the GIL for every detection; the queue's feeder thread and
+        # the publisher thread must get it within a millisecond, not the default 5 ms
+        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
         self._publish = publish
         self._log = log
         self._process = TrackerProcess(
@@ -205,6 +216,11 @@ class StreamMode:
         self.ingest = StreamIngest(bounds, settings.max_buffered, self._process.put, on_reject)
         self._lock = threading.Lock()
         self.latencies: deque[float] = deque(maxlen=STATS_WINDOW)  # arrival -> published [s]
+        # the latency's parts [s]: queued to the tracker process, held by its reorder buffer,
+        # in the tracker until the answer was sent, from then to its publication
+        self.latency_parts: dict[str, deque[float]] = {
+            part: deque(maxlen=STATS_WINDOW) for part in LATENCY_PARTS
+        }
         self.solve_times: deque[float] = deque(maxlen=STATS_WINDOW)  # tracker per batch [s]
         self.last: Answer | None = None
         self.published = 0
@@ -221,6 +237,11 @@ class StreamMode:
 
     def add(self, *args) -> None:
         self.ingest.add(*args)
+
+    def wait_ready(self, timeout: float) -> bool:
+        """Wait until the tracker process has warmed up (its imports, the first solve); False
+        if it did not within ``timeout`` seconds."""
+        return self._process.wait_ready(timeout)
 
     def clock(self, now: float) -> None:
         """The node's clock for the reorder buffer while no detection arrives (called by a
@@ -256,6 +277,16 @@ class StreamMode:
         now = time.monotonic()
         with self._lock:
             self.latencies.extend(now - t for t in answer.received_at)
+            if answer.released_at and len(answer.dequeued_at) == len(answer.received_at):
+                parts = self.latency_parts
+                sent = answer.sent_at
+                for rx, deq, rel in zip(
+                    answer.received_at, answer.dequeued_at, answer.released_at, strict=True
+                ):
+                    parts['queue'].append(deq - rx)
+                    parts['hold'].append(rel - deq)
+                    parts['tracker'].append(sent - rel)
+                    parts['publish'].append(now - sent)
             if answer.received_at:
                 self.solve_times.append(answer.solve_time)
             self.last = answer
@@ -276,7 +307,8 @@ class StreamMode:
     def diagnostics(self) -> dict[str, object]:
         """Stream values for /diagnostics (counts of the ingest are merged by the node)."""
         with self._lock:
-            lat = sorted(self.latencies)
+            lat = np.fromiter(self.latencies, float, len(self.latencies))
+            parts = {part: np.fromiter(v, float, len(v)) for part, v in self.latency_parts.items()}
             solve = list(self.solve_times)
             last = self.last
         values: dict[str, object] = {
@@ -293,15 +325,18 @@ class StreamMode:
             for key in ('tracks_confirmed', 'tracks_final', 'links_revised', 'pushed'):
                 values[f'stream.{key}'] = last.stats.get(key, 0)
             for key, value in sorted(last.stats.items()):
-                if key.startswith('tracker.'):
+                if key.startswith(('tracker.', 'reorder_')):
                     values[f'stream.{key}'] = value
             if math.isfinite(last.committed_until):
                 values['stream.committed_until'] = f'{last.committed_until:.6f}'
                 values['stream.commit_lag'] = f'{last.newest_stamp - last.committed_until:.6f}'
-        values['stream.latency_count'] = len(lat)
-        for q in (0.5, 0.95, 0.99):
-            values[f'stream.latency_p{round(q * 100)}'] = f'{_quantile(lat, q):.6f}' if lat else ''
-        values['stream.latency_max'] = f'{lat[-1]:.6f}' if lat else ''
+        values['stream.latency_count'] = lat.size
+        for q, x in zip((0.5, 0.95, 0.99, 1.0), _quantiles(lat, (0.5, 0.95, 0.99, 1.0))):
+            name = 'max' if q == 1.0 else f'p{round(q * 100)}'
+            values[f'stream.latency_{name}'] = x
+        for part, v in parts.items():
+            for q, x in zip((0.5, 0.95), _quantiles(v, (0.5, 0.95))):
+                values[f'stream.latency_{part}_p{round(q * 100)}'] = x
         values['stream.solve_time_mean'] = f'{sum(solve) / len(solve):.6f}' if solve else ''
         values['stream.solve_time_max'] = f'{max(solve):.6f}' if solve else ''
         return values
@@ -312,8 +347,8 @@ class StreamMode:
             self._thread.join(timeout=10.0)
 
 
-def _quantile(ordered: list[float], q: float) -> float:
-    pos = q * (len(ordered) - 1)
-    lo = int(pos)
-    hi = min(lo + 1, len(ordered) - 1)
-    return ordered[lo] + (ordered[hi] - ordered[lo]) * (pos - lo)
+def _quantiles(values: np.ndarray, qs: tuple[float, ...]) -> list[str]:
+    """The quantiles (linear interpolation) as diagnostics strings; '' for no values."""
+    if not values.size:
+        return [''] * len(qs)
+    return [f'{x:.6f}' for x in np.quantile(values, qs)]

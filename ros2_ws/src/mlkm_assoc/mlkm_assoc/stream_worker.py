@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -52,6 +53,8 @@ class TrackerSettings:
     seed: int
 
 
+#: Sent by the tracker process once it has warmed up, before any Answer.
+READY = 'ready'
 #: A queued detection: ('det', key, sensor index, sensor id, stamp ns, velocity, position,
 #: lane, length, monotonic arrival time). Other items: ('layout', Layout, entries, exits),
 #: ('flush', monotonic time), ('tick', monotonic time: the node's clock while nothing
@@ -75,6 +78,11 @@ class Answer:
     flushed: bool = False
     stats: dict[str, Any] = field(default_factory=dict)
     error: str | None = None
+    # monotonic times (the clock every process of the machine shares) of each detection of
+    # the batch: taken from the queue by this process, released by the reorder buffer
+    dequeued_at: list[float] = field(default_factory=list)
+    released_at: list[float] = field(default_factory=list)
+    sent_at: float = math.nan  # monotonic time the answer was sent to the node
 
 
 class TrackerState:
@@ -124,7 +132,7 @@ class TrackerState:
     def hold(self, item: Item) -> None:
         """A detection into the reorder buffer (see :mod:`mlkm_assoc.reorder`)."""
         self.node_now = max(self.node_now, item[9])
-        self._reorder.add(item, item[2], item[4] / NS_PER_S, item[9])
+        self._reorder.add((item, time.monotonic()), item[2], item[4] / NS_PER_S, item[9])
 
     def tick(self, now: float) -> None:
         self.node_now = max(self.node_now, now)
@@ -135,7 +143,13 @@ class TrackerState:
         if self._reorder is None:
             return None
         ready = self._reorder.drain() if drain else self._reorder.release(self.node_now)
-        return self.push_batch(ready) if ready else None
+        if not ready:
+            return None
+        now = time.monotonic()
+        answer = self.push_batch([r[0] for r in ready])
+        answer.dequeued_at = [r[1] for r in ready]
+        answer.released_at = [now] * len(ready)
+        return answer
 
     def push_batch(self, items: list[Item]) -> Answer:
         if self._tracker is None:
@@ -363,6 +377,7 @@ class TrackerProcess:
     the process ended)."""
 
     def __init__(self, settings: TrackerSettings) -> None:
+        self._ready = threading.Event()
         ctx = multiprocessing.get_context('spawn')
         self._solver = SolverProcess(ctx)
         self._items = ctx.Queue()
@@ -381,12 +396,22 @@ class TrackerProcess:
 
     def get(self, timeout: float | None = None) -> Answer | None:
         """The next Answer (None once the process ended); TimeoutError after ``timeout``."""
-        try:
-            if timeout is not None and not self._answers.poll(timeout):
-                raise TimeoutError(f'no answer from the tracker process in {timeout:g} s')
-            return self._answers.recv()
-        except (EOFError, OSError):
-            return None
+        while True:
+            try:
+                if timeout is not None and not self._answers.poll(timeout):
+                    raise TimeoutError(f'no answer from the tracker process in {timeout:g} s')
+                answer = self._answers.recv()
+            except (EOFError, OSError):
+                self._ready.set()  # nobody waits for a process that is gone
+                return None
+            if answer != READY:
+                return answer
+            self._ready.set()
+
+    def wait_ready(self, timeout: float) -> bool:
+        """Wait until the process has warmed up (needs a reader calling ``get``); False if it
+        did not within ``timeout`` seconds."""
+        return self._ready.wait(timeout)
 
     def close(self, timeout: float = 5.0) -> None:
         if self._proc.is_alive():
@@ -414,6 +439,7 @@ def _serve(items, answers, parent: int, settings: TrackerSettings, solver_ends=N
     _warm_up(settings)
     executor = SolverClient(solver_ends) if solver_ends is not None else None
     state = TrackerState(settings, encode_tracks, executor)
+    answers.send(READY)
     while True:
         try:
             item = items.get(timeout=POLL_PERIOD if state.solving else 1.0)
@@ -462,4 +488,5 @@ def _warm_up(settings: TrackerSettings) -> None:
 
 def _send(answers, answer: Answer | None) -> None:
     if answer is not None:
+        answer.sent_at = time.monotonic()
         answers.send(answer)

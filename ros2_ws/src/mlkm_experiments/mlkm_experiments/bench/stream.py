@@ -248,6 +248,11 @@ def run_latency(domain_id: int, log_dir: Path) -> dict:
         }
         for q in ('p50', 'p95', 'p99', 'max'):
             rec[f'latency_{q}'] = _num(v, f'stream.latency_{q}')
+        rec['latency_parts'] = {
+            part: {q: _num(v, f'stream.latency_{part}_{q}') for q in ('p50', 'p95')}
+            for part in ('queue', 'hold', 'tracker', 'publish')
+        }
+        rec['reorder_timeouts'] = _num(v, 'stream.reorder_timeouts')
         rec['ok'] = latency_ok(rec['latency_p95'])
         out[name] = rec
     return out
