@@ -25,6 +25,7 @@ import multiprocessing
 import os
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -380,16 +381,18 @@ class TrackerProcess:
         self._ready = threading.Event()
         ctx = multiprocessing.get_context('spawn')
         self._solver = SolverProcess(ctx)
-        self._items = ctx.Queue()
+        items, item_sender = ctx.Pipe(duplex=False)
         self._answers, sender = ctx.Pipe(duplex=False)
         self._proc = ctx.Process(
             target=_serve,
-            args=(self._items, sender, os.getpid(), settings, self._solver.ends),
+            args=(items, sender, os.getpid(), settings, self._solver.ends),
             name='mlkm_stream_tracker',
             daemon=True,
         )
         self._proc.start()
         sender.close()
+        items.close()
+        self._items = _BatchSender(item_sender)
 
     def put(self, item: Item | None) -> None:
         self._items.put(item)
@@ -417,16 +420,53 @@ class TrackerProcess:
         if self._proc.is_alive():
             self._items.put(None)
             self._proc.join(timeout)
+        self._items.close()
         if self._proc.is_alive():
             self._proc.terminate()
             self._proc.join(2.0)
         self._solver.close()
 
 
+class _BatchSender:
+    """Items to the tracker process from a thread of its own, as lists: whatever queued up
+    while the last list was written goes in the next one (one pickle and one write per list,
+    not per detection; one item per list while the rate is low)."""
+
+    def __init__(self, conn) -> None:
+        self._conn = conn
+        self._items: deque[Item | None] = deque()
+        self._wake = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='stream_sender', daemon=True)
+        self._thread.start()
+
+    def put(self, item: Item | None) -> None:
+        self._items.append(item)
+        self._wake.set()
+
+    def _run(self) -> None:
+        while True:
+            self._wake.wait()
+            self._wake.clear()
+            batch = []
+            while self._items:
+                batch.append(self._items.popleft())
+            if not batch:
+                continue
+            try:
+                self._conn.send(batch)
+            except (BrokenPipeError, OSError):
+                return  # the tracker process is gone
+            if None in batch:
+                return
+
+    def close(self) -> None:
+        self._thread.join(timeout=5.0)
+        self._conn.close()
+
+
 def _serve(items, answers, parent: int, settings: TrackerSettings, solver_ends=None) -> None:
-    """Process main loop: queued items in, detections through the reorder buffer into the
-    tracker, one Answer per batch out."""
-    import queue as _queue
+    """Process main loop: lists of items in, detections through the reorder buffer into the
+    tracker, one Answer per batch of at most MAX_BATCH items out."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node stops us; Ctrl-C is for it
@@ -440,20 +480,22 @@ def _serve(items, answers, parent: int, settings: TrackerSettings, solver_ends=N
     executor = SolverClient(solver_ends) if solver_ends is not None else None
     state = TrackerState(settings, encode_tracks, executor)
     answers.send(READY)
+    pending: deque[Item | None] = deque()
     while True:
         try:
-            item = items.get(timeout=POLL_PERIOD if state.solving else 1.0)
-        except _queue.Empty:
-            if os.getppid() != parent:
-                return
-            _send(answers, state.poll())
-            continue
-        for n in range(MAX_BATCH):
-            if n:
-                try:
-                    item = items.get_nowait()
-                except _queue.Empty:
-                    break
+            if not pending:
+                if not items.poll(POLL_PERIOD if state.solving else 1.0):
+                    if os.getppid() != parent:
+                        return
+                    _send(answers, state.poll())
+                    continue
+                pending.extend(items.recv())
+            while len(pending) < MAX_BATCH and items.poll(0):
+                pending.extend(items.recv())
+        except (EOFError, OSError):
+            return  # the node is gone
+        for _ in range(min(MAX_BATCH, len(pending))):
+            item = pending.popleft()
             if item is None:
                 _send(answers, state.release(drain=True))
                 answers.send(None)
