@@ -11,7 +11,7 @@ from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.streaming import StreamConfig, StreamTracker
-from mlkm_core.streaming.motion import LinkCost
+from mlkm_core.streaming.motion import LinkCost, overdue_at
 from mlkm_core.streaming.solve import CarriedModel, WindowProblem, solve
 from mlkm_core.types import Layout
 
@@ -54,6 +54,19 @@ def test_link_cost_equals_the_pairwise_model():
             else:
                 assert abs(got - want) <= 1e-9 * max(1.0, abs(want))
         assert 0 < gated < 500  # both sides of the gate were exercised
+
+
+def test_link_due_equals_the_overdue_gate_of_the_pairwise_model():
+    rng = np.random.default_rng(1)
+    layout = Layout(2000.0, np.sort(rng.uniform(0, 2000, 12)))
+    for p in (MotionParams(), replace(MotionParams(), jump_rate=0.002, sigma=3.0)):
+        cost = LinkCost(p, layout)
+        for _ in range(200):
+            a = int(rng.integers(0, 10))
+            to = a + int(rng.integers(1, 3))
+            t, v = rng.uniform(0, 100), rng.uniform(5, 35)
+            want = overdue_at(p, layout, a, t, v, to)
+            assert abs(cost.due((a, t, v), to) - want) <= 1e-9 * max(1.0, abs(want))
 
 
 def test_a_carried_model_gives_the_calibrating_solve_its_own_result():

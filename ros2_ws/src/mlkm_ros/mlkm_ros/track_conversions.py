@@ -9,6 +9,7 @@ that became unassigned and the commit horizon.
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -175,6 +176,8 @@ def stream_tracks_to_msg(
         solve_time=float(solve_time),
         committed_until=ns_to_time(max(int(committed_until_ns), 0)),
     )
+    # numeric sequences as array.array: the message's setters then copy them whole instead
+    # of checking every element (this runs for every TrackArray of stream mode)
     out = []
     for track_id, status, rows in tracks:
         rows = sorted(rows, key=lambda r: (r[3], r[1], r[4]))
@@ -182,20 +185,20 @@ def stream_tracks_to_msg(
             Track(
                 track_id=int(track_id),
                 status=int(status),
-                sensor_ids=[int(r[0]) for r in rows],
+                sensor_ids=array('I', [r[0] for r in rows]),
                 stamps=[ns_to_time(r[1]) for r in rows],
-                velocities=[float(r[2]) for r in rows],
-                positions=[float(r[3]) for r in rows],
-                lanes=[int(r[4]) for r in rows],
-                lengths=[float(r[5]) for r in rows],
+                velocities=array('d', [r[2] for r in rows]),
+                positions=array('d', [r[3] for r in rows]),
+                lanes=array('h', [r[4] for r in rows]),
+                lengths=array('d', [r[5] for r in rows]),
             )
         )
     msg.tracks = out
-    msg.unassigned_sensor_ids = [int(r[0]) for r in unassigned]
+    msg.unassigned_sensor_ids = array('I', [r[0] for r in unassigned])
     msg.unassigned_stamps = [ns_to_time(r[1]) for r in unassigned]
-    msg.unassigned_velocities = [float(r[2]) for r in unassigned]
-    msg.unassigned_lanes = [int(r[4]) for r in unassigned]
-    msg.unassigned_lengths = [float(r[5]) for r in unassigned]
+    msg.unassigned_velocities = array('d', [r[2] for r in unassigned])
+    msg.unassigned_lanes = array('h', [r[4] for r in unassigned])
+    msg.unassigned_lengths = array('d', [r[5] for r in unassigned])
     return msg
 
 

@@ -3,6 +3,8 @@ one call changed (``mlkm_core.streaming``)."""
 
 from __future__ import annotations
 
+import heapq
+
 import numpy as np
 
 from mlkm_core.streaming.config import CONFIRMED, FINAL, TENTATIVE, StreamUpdate, TrackUpdate
@@ -66,6 +68,10 @@ class TrackBook:
         self._pending: set[int] = set()
         self._tails: list[set[int]] = [set() for _ in range(n_sensors)]
         self._tail_of: dict[int, tuple[int, int]] = {}  # track -> (key, station) of its tail
+        # (stamp after which a tail can take no new detection, track, tail key): tails whose
+        # time is up leave ``_tails`` (the immediate link's candidates) before their track
+        # is finalised, which waits for the window solves
+        self._sleepers: list[tuple[float, int, int]] = []
         self._next_id = 0
         self._committed_until = -np.inf
         self._begin()
@@ -139,3 +145,17 @@ class TrackBook:
         tail = max((self._dets[k] for k in members), key=lambda d: (d.sensor, d.stamp))
         self._tail_of[tid] = (tail.key, tail.sensor)
         self._tails[tail.sensor].add(tid)
+        heapq.heappush(self._sleepers, (self._tail_due(tail), tid, tail.key))
+
+    def _tail_due(self, tail: Det) -> float:
+        """Stamp after which no new detection can be linked after ``tail`` (inf: never)."""
+        return float('inf')
+
+    def _sleep_tails(self, before: float) -> None:
+        """Take the tails whose time was up before ``before`` out of the link candidates."""
+        heap = self._sleepers
+        while heap and heap[0][0] < before:
+            _, tid, key = heapq.heappop(heap)
+            tail = self._tail_of.get(tid)
+            if tail is not None and tail[0] == key:
+                self._tails[tail[1]].discard(tid)

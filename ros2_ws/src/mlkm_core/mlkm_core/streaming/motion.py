@@ -99,6 +99,22 @@ class LinkCost:
         w = nll + (sensor - 1 - tail[0]) * p.miss_cost - p.miss_cost - birth
         return w if d2 <= p.gate and math.isfinite(w) else math.inf
 
+    def due(self, tail: tuple[int, float, float], to: int) -> float:
+        """Stamp after which a vehicle last seen at ``tail`` (sensor, stamp, velocity) is past
+        the gate of its passage at station ``to`` (``overdue_at`` in plain floats)."""
+        p = self.p
+        x1, x2 = self.positions[tail[0]], self.positions[to]
+        dx = x2 - x1
+        u = 1.0 / tail[2]
+        vn = (self.noise_v * u * u) ** 2
+        su2 = (p.sigma * u * u) ** 2
+        var_du = 2 * vn + 2 * su2 * (1 - math.exp(-dx / p.length))
+        var_t = self.noise_t2 + dx * dx * var_du + su2 * dx**3 / (6 * p.length)
+        if p.jump_rate > 0:
+            var_t += (p.jump_sigma * u * u) ** 2 * dx * dx
+        due = tail[1] + dx * u + self._extra(x1, x2) + math.sqrt(p.gate * var_t)
+        return due if math.isfinite(due) else tail[1]
+
 
 def overdue_at(
     p: MotionParams, layout: Layout, sensor: int, stamp: float, velocity: float, to: int

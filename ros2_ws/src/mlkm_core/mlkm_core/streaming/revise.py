@@ -9,7 +9,6 @@ from collections import Counter
 import numpy as np
 
 from mlkm_core.streaming.book import Det, TrackBook, canon
-from mlkm_core.streaming.motion import overdue_at
 
 
 class Revisions(TrackBook):
@@ -82,7 +81,7 @@ class Revisions(TrackBook):
         station (before an off-ramp) or 1 + max_skip stations on is beyond the gate."""
         span = 1 if self._before_exit[tail.sensor] else 1 + self._params.max_skip
         to = min(tail.sensor + span, self.layout.n_sensors - 1)
-        return overdue_at(self._params, self.layout, tail.sensor, tail.stamp, tail.velocity, to)
+        return self._link_cost().due((tail.sensor, tail.stamp, tail.velocity), to)
 
     def _finalize(self, bound: float, everything: bool) -> None:
         """FINAL: a track whose detections below the boundary are all committed and that

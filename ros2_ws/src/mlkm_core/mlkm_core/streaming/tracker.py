@@ -220,6 +220,24 @@ class StreamTracker(Revisions):
         return key, sensor_index, stamp, velocity
 
     # ----------------------------------------------------------------- immediate link
+    def _link_cost(self) -> LinkCost:
+        """The pairwise model's link cost under the current motion parameters."""
+        if self._cost is None or self._cost.p is not self._params:
+            self._cost = LinkCost(self._params, self.layout)
+        return self._cost
+
+    def _tail_due(self, tail: Det) -> float:
+        """A tail takes no new detection once every station it could be linked to (1 to
+        1 + max_skip on) is past the gate, and it is older than the stamp noise's gate
+        before any new one (the downstream candidates of ``_link_now``); computed with the
+        parameters of the moment."""
+        p = self._params
+        late = tail.stamp + 6 * math.sqrt(2) * p.stamp_noise
+        to = min(tail.sensor + 1 + p.max_skip, self.layout.n_sensors - 1)
+        if to == tail.sensor:
+            return late
+        return max(late, self._link_cost().due((tail.sensor, tail.stamp, tail.velocity), to))
+
     def _link_now(self, d: Det) -> tuple[int, int]:
         """(track, key of the detection ``d`` follows in it) by the gated pairwise prediction,
         or (-1, -1) for a new track. Candidates: the open tracks whose latest detection lies
@@ -228,9 +246,8 @@ class StreamTracker(Revisions):
         under noise, or a miss filled in; not one that passed there more than the stamp
         noise's gate before d), predicted from their detection just upstream."""
         p = self._params
-        if self._cost is None or self._cost.p is not p:
-            self._cost = LinkCost(p, self.layout)
-        weight = self._cost.weight
+        weight = self._link_cost().weight
+        self._sleep_tails(self._newest - self.config.reorder_tolerance)
         s = d.sensor
         earliest = d.stamp - 6 * math.sqrt(2) * p.stamp_noise
         birth = p.miss_cost if self._after_entry[s] else p.new_cost

@@ -47,7 +47,7 @@ from .stream_lag import SIM_SEEDS, SUMO_SEEDS, run_lag
 
 SENSORS = 20
 #: name -> (arrival_rate [vehicles/s], real_time_factor, duration [s]): 20 x rate x rtf det/s
-LATENCY_RUNS = {'100/s': (0.5, 10.0, 300.0), '1000/s': (1.0, 50.0, 480.0)}
+LATENCY_RUNS = {'100/s': (0.5, 10.0, 300.0), '1000/s': (1.0, 50.0, 1500.0)}
 LATENCY_P95_MAX = 0.05  # [s]
 THROUGHPUT_SOURCE = (1.0, 0.0, 500.0)
 REPEATS = 3
