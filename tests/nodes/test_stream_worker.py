@@ -11,7 +11,8 @@ import numpy as np
 from rclpy.serialization import deserialize_message
 
 from mlkm_assoc.reorder import ReorderBuffer
-from mlkm_assoc.stream_worker import MAX_BATCH, TrackerProcess, TrackerSettings
+from mlkm_assoc.stream_state import TrackerSettings
+from mlkm_assoc.stream_worker import MAX_BATCH, TrackerProcess
 from mlkm_core.streaming import StreamConfig, StreamTracker
 from mlkm_core.types import Layout
 from mlkm_ros import conversions as conv

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mlkm_assoc.stream_worker import Answer, TrackerProcess, TrackerSettings
+from mlkm_assoc.stream_state import Answer, TrackerSettings
+from mlkm_assoc.stream_worker import TrackerProcess
 from mlkm_core.bounds import REASONS as BOUNDS_REASONS
 from mlkm_core.bounds import Bounds
 from mlkm_core.types import Layout

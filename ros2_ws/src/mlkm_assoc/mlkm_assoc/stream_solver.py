@@ -8,10 +8,14 @@ tracker applies the solution at its boundary once ``done``. Solves run one at a 
 the order submitted. Both processes are children of the node (a daemonic process has no
 children of its own), connected by two pipes.
 
-The solver runs at a lower CPU priority (``SOLVER_NICENESS``, SCHED_BATCH): a detection's
-latency depends on the node and the tracker process getting the CPU when it arrives, while
-a solve only has to be done before its commits are due. When the machine cannot do both,
-the commits fall behind (``stream.commit_lag`` in /diagnostics) rather than the links.
+The solver runs as a batch job (SCHED_BATCH): it keeps its fair share of the CPU but does not
+preempt the node or the tracker process when they wake up, since a detection's latency
+depends on them getting the CPU when it arrives, while a solve only has to be done before
+its commits are due. When the machine cannot do both, the commits fall behind
+(``stream.commit_lag`` in /diagnostics). Measured on 2 cores with the stream part of ``mlkm
+bench`` at 1,000 detections/s: latency p95 35-44 ms (three runs). A niceness of 10 as well
+gave no better latency and starved the solves while a source at real_time_factor 0 took a
+core (the node's RSS then grew 13 % over the hour of SUMO traffic, limit 10 %).
 """
 
 from __future__ import annotations
@@ -22,12 +26,6 @@ import time
 from collections import deque
 from typing import Any
 
-#: Niceness added to the solver process, which also runs as a batch job (SCHED_BATCH: it does
-#: not preempt the node or the tracker when they wake up). Measured on 2 cores with the stream
-#: part of ``mlkm bench``: at 1,000 detections/s the latency p95 was 0.05-0.08 s at niceness 0
-#: and 0.04-0.06 s at 10 (three runs each); in the hour of SUMO traffic at real_time_factor 0,
-#: where the commits then lag more while detections pour in, the RSS grew 9 % (limit 10 %).
-SOLVER_NICENESS = 10
 #: Shortest time between two looks at the result pipe from ``done`` [s]: the tracker asks at
 #: every push, and a look is a system call.
 LOOK_PERIOD = 0.002
@@ -128,9 +126,8 @@ def _serve(requests, results, parent: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node stops us; Ctrl-C is for it
     try:
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
-        os.nice(SOLVER_NICENESS)
     except (OSError, AttributeError):
-        pass  # not permitted here: solves compete with the pushes on equal terms
+        pass  # not available here: solves compete with the pushes on equal terms
     try:
         from threadpoolctl import threadpool_limits
 

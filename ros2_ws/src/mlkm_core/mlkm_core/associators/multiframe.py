@@ -16,7 +16,8 @@ from higher-order evidence. Two sources:
    likelihood of both tracks over the 6 sensors before and the 6 sensors from the exchange on,
    i.e. with look-ahead as well as history; improving moves are applied greedily until none
    is left. It starts from the Kalman pass and, for inputs of up to ``DUAL_START_MAX``
-   detections, also from the pairwise pass; the more likely result (Kalman model) is kept.
+   detections that it calibrates on itself, also from the pairwise pass; the more likely
+   result (Kalman model) is kept.
 
 The model parameters are estimated from the data (``calibration.estimate_params``), lane and
 length included when reported. On an open road (``AssociatorConfig.entries`` / ``exits``) a
@@ -133,7 +134,10 @@ class MultiFrameAssociator(Associator):
         # local search from two starting points (the Kalman and the pairwise forward pass);
         # keep the more likely result under the Kalman model
         best, best_nll = None, math.inf
-        starts = ('kalman', 'pairwise') if len(d) <= DUAL_START_MAX else ('kalman',)
+        # the second start guards against a noisy self-calibration on few detections; a model
+        # calibrated elsewhere (``motion``, the stream's carried model) does not need it
+        dual = motion is None and len(d) <= DUAL_START_MAX
+        starts = ('kalman', 'pairwise') if dual else ('kalman',)
         with np.errstate(all='ignore'):  # a non-finite score only disqualifies a start
             for model in starts:
                 start = pairwise if model == 'pairwise' else link(layout, d, params, model)

@@ -25,13 +25,16 @@ Mechanism
    (``multiframe`` with its Kalman pass and multi-frame local search inside the window, so a
    link is decided with evidence from the stations after it), the paper's ``mlkm``,
    ``mlkm_no_ec``, ``kmeans_*`` and ``mlkm_robust`` over the sliding window with the number of
-   clusters estimated from the window (its largest per-station count). Each method calibrates
-   its motion model on the window it is given; the anchors carry the open tracks' recent
-   history into it, and ``assignment``, ``multiframe`` and ``mlkm_robust`` also get the
-   detections of the most recently ended tracks (``context_size``), so that sparse traffic
-   still gives them enough tracks to calibrate on (their clusters are not used). With a lag
-   longer than the input nothing is committed before ``flush``, whose window is the whole
-   input: the stream gives exactly the batch association.
+   clusters estimated from the window (its largest per-station count). The anchors carry the
+   open tracks' recent history into the window. ``assignment``, ``multiframe`` and
+   ``mlkm_robust`` calibrate their motion model on their input: they do so on the first
+   window and then every ``calibration_every`` windows, given also the detections of the
+   most recently ended tracks (``context_size``) so that sparse traffic still gives them
+   enough tracks (their clusters are not used); the windows in between get that model
+   carried over (``solve.CarriedModel``; not a model that learnt a queue's order within
+   lanes, which is bound to its own detections). With a lag longer than the input nothing
+   is committed before ``flush``, whose window is the whole input and calibrates: the
+   stream gives exactly the batch association.
 3. **Stitching onto stable ids.** The window's clusters are mapped back through the anchors:
    a cluster holding the last committed detection of an open track continues that track (of
    several such tracks, each takes the cluster's window detections from its own last
@@ -48,10 +51,12 @@ Mechanism
    B when its latest detection is at the last station, or when B is past the gate of its
    passage at the next station (if an off-ramp lies before it: it left there) or at the
    station 1 + ``max_skip`` further on (a missed detection does not end a track). The
-   pairwise model used for this and for the immediate link is calibrated every
-   ``calibration_every`` solves on the last ``calibration_size`` committed detections and
-   the window. A FINAL track leaves the working set with its detections, so memory stays
-   bounded on an endless input. ``flush`` (the road fell quiet, or the input ended) solves
+   pairwise model used for this and for the immediate link is the method's calibrated model
+   (for the K-means methods: calibrated every ``calibration_every`` solves on the last
+   ``calibration_size`` committed detections and the window). A track's latest detection
+   stops being a candidate of the immediate link once that gate has passed, before its
+   track is finalised. A FINAL track leaves the working set with its detections, so memory
+   stays bounded on an endless input. ``flush`` (the road fell quiet, or the input ended) solves
    and commits everything and makes every track FINAL.
 
 Solving beside the stream. A window solve takes up to seconds. Given an ``executor`` (an

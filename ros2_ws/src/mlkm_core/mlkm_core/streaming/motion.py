@@ -45,6 +45,7 @@ class LinkCost:
         self.positions = [float(x) for x in layout.positions]
         self.noise_t2 = 2 * max(p.stamp_noise, FLOOR_T) ** 2
         self.noise_v = max(p.velocity_noise, FLOOR_V)
+        self.miss = p.miss_cost
         self.delay = None
         if p.delay is not None:
             self.delay = ([float(x) for x in p.delay[0]], [float(c) for c in p.delay[1]])
@@ -96,7 +97,7 @@ class LinkCost:
                 d2 = min(d2, d21)
         except (ValueError, ZeroDivisionError, OverflowError):
             return math.inf
-        w = nll + (sensor - 1 - tail[0]) * p.miss_cost - p.miss_cost - birth
+        w = nll + (sensor - 2 - tail[0]) * self.miss - birth
         return w if d2 <= p.gate and math.isfinite(w) else math.inf
 
     def due(self, tail: tuple[int, float, float], to: int) -> float:

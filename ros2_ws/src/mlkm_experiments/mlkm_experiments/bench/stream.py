@@ -253,6 +253,9 @@ def run_latency(domain_id: int, log_dir: Path) -> dict:
             for part in ('queue', 'hold', 'tracker', 'publish')
         }
         rec['reorder_timeouts'] = _num(v, 'stream.reorder_timeouts')
+        # how far the window solves were behind when the source stopped [s of stamp time]
+        rec['commit_lag_at_end'] = _num(v, 'stream.commit_lag')
+        rec['working_set_at_end'] = _num(v, 'stream.working_set')
         rec['ok'] = latency_ok(rec['latency_p95'])
         out[name] = rec
     return out

@@ -1,0 +1,355 @@
+"""What stream mode's tracker process keeps: the core's
+:class:`~mlkm_core.streaming.StreamTracker` behind its reorder buffer, the data of the
+detections it may still publish, and each batch's answer as a ready-to-publish TrackArray
+(ROS-free apart from ``encode_tracks``). The process around it is
+:mod:`mlkm_assoc.stream_worker`.
+
+Whatever is queued when the process gets to it is pushed as one batch and answered with one
+TrackArray holding the latest state of every track the batch changed (TrackArray
+MODE_STREAM: tracks with all their detections, the detections that became unassigned,
+committed_until). Memory stays bounded: a detection's data is dropped once its link is
+committed and its track is FINAL (or it was committed unassigned).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mlkm_assoc.reorder import ReorderBuffer
+from mlkm_core.types import Layout
+
+NS_PER_S = 1_000_000_000
+#: Track status values (road_sensor_msgs/Track.STATUS_*; the core's TENTATIVE..FINAL).
+TENTATIVE, CONFIRMED, FINAL = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """What the process needs to build trackers (picklable)."""
+
+    method: str
+    lag: float  # [s]
+    segment_size: int
+    seed: int
+
+
+#: A queued detection: ('det', key, sensor index, sensor id, stamp ns, velocity, position,
+#: lane, length, monotonic arrival time). Other items: ('layout', Layout, entries, exits),
+#: ('flush', monotonic time), ('tick', monotonic time: the node's clock while nothing
+#: arrives) and None (stop).
+Item = tuple
+
+
+@dataclass
+class Answer:
+    """What one batch changed, ready to publish, with the tracker's counters."""
+
+    data: bytes | None  # CDR of a TrackArray; None when nothing changed
+    received_at: list[float]  # monotonic arrival time of each detection of the batch
+    tracks: int  # tracks in the message
+    unassigned: int  # unassigned detections in the message
+    solve_time: float  # [s] spent in the tracker on this batch
+    committed_until: float  # [s] stamp time
+    newest_stamp: float  # [s] stamp time
+    working_set: int  # detections the tracker holds
+    held: int  # detections whose data this process holds
+    flushed: bool = False
+    stats: dict[str, Any] = field(default_factory=dict)
+    error: str | None = None
+    # monotonic times (the clock every process of the machine shares) of each detection of
+    # the batch: taken from the queue by this process, released by the reorder buffer
+    dequeued_at: list[float] = field(default_factory=list)
+    released_at: list[float] = field(default_factory=list)
+    sent_at: float = math.nan  # monotonic time the answer was sent to the node
+
+
+class TrackerState:
+    """The tracker and the data of the detections it may still publish (ROS-free apart from
+    ``encode``, which turns a batch into a serialized TrackArray)."""
+
+    def __init__(self, settings: TrackerSettings, encode, executor=None) -> None:
+        self._settings = settings
+        self._encode = encode
+        self._executor = executor  # runs the tracker's window solves (None: inside push)
+        self._tracker = None
+        self._layout: Layout | None = None
+        self._rows: dict[int, list] = {}  # key -> [sensor id, stamp ns, v, pos, lane, length]
+        self._committed: dict[int, int] = {}  # key -> committed track (-1 unassigned)
+        self._final: dict[int, int] = {}  # final track -> its detections still held
+        self._published: dict[int, int] = {}  # key -> track it was last published in
+        self.counts: dict[str, int] = {
+            'pushed': 0,
+            'tracks_confirmed': 0,
+            'tracks_final': 0,
+            'links_revised': 0,
+            'flushes': 0,
+            'push_errors': 0,
+        }
+        self._confirmed_ids: set[int] = set()  # confirmed tracks that are not final yet
+        self.newest = -math.inf
+        self.committed_until = -math.inf
+        self._reorder: ReorderBuffer | None = None
+        self.node_now = -math.inf  # the node's clock as far as its items tell [s]
+
+    # --- inputs ---------------------------------------------------------------------------
+    def set_layout(self, layout: Layout, entries, exits) -> Answer | None:
+        """A new road: the old tracker is flushed first (its tracks become FINAL)."""
+        answer = self.flush(time.monotonic()) if self._tracker is not None else None
+        from mlkm_core.streaming import StreamConfig, StreamTracker
+
+        s = self._settings
+        config = StreamConfig(method=s.method, lag=s.lag, segment_size=s.segment_size, seed=s.seed)
+        self._tracker = StreamTracker(
+            layout, config, entries=entries, exits=exits, executor=self._executor
+        )
+        self._layout = layout
+        self._reorder = ReorderBuffer(layout.n_sensors)
+        self.newest = self.committed_until = -math.inf
+        return answer
+
+    def hold(self, item: Item) -> None:
+        """A detection into the reorder buffer (see :mod:`mlkm_assoc.reorder`)."""
+        self.node_now = max(self.node_now, item[9])
+        self._reorder.add((item, time.monotonic()), item[2], item[4] / NS_PER_S, item[9])
+
+    def tick(self, now: float) -> None:
+        self.node_now = max(self.node_now, now)
+
+    def release(self, drain: bool = False) -> Answer | None:
+        """Push what the reorder buffer releases by the node's clock (everything with
+        ``drain``)."""
+        if self._reorder is None:
+            return None
+        ready = self._reorder.drain() if drain else self._reorder.release(self.node_now)
+        if not ready:
+            return None
+        now = time.monotonic()
+        answer = self.push_batch([r[0] for r in ready])
+        answer.dequeued_at = [r[1] for r in ready]
+        answer.released_at = [now] * len(ready)
+        return answer
+
+    def push_batch(self, items: list[Item]) -> Answer:
+        if self._tracker is None:
+            return Answer(
+                None,
+                [i[9] for i in items],
+                0,
+                0,
+                0.0,
+                -math.inf,
+                -math.inf,
+                0,
+                0,
+                error='detections before the layout reached the tracker process',
+            )
+        merged = _Merged()
+        received = []
+        t0 = time.perf_counter()
+        error = None
+        for item in items:
+            _, key, s, sensor_id, stamp_ns, velocity, position, lane, length, rx = item
+            received.append(rx)
+            self._rows[key] = [sensor_id, stamp_ns, velocity, position, lane, length]
+            stamp = stamp_ns / NS_PER_S
+            self.newest = max(self.newest, stamp)
+            self.counts['pushed'] += 1
+            try:
+                update = self._tracker.push(key, s, stamp, velocity, lane, length)
+            except Exception as exc:  # noqa: BLE001 - reported; the detection stays unassigned
+                self.counts['push_errors'] += 1
+                error = f'tracker refused detection {key}: {type(exc).__name__}: {exc}'
+                merged.unassigned[key] = None
+                continue
+            merged.add(update)
+        return self._answer(merged, received, time.perf_counter() - t0, error)
+
+    @property
+    def solving(self) -> bool:
+        return self._tracker is not None and self._tracker.solving
+
+    def poll(self) -> Answer | None:
+        """Apply the window solves that are done; an Answer when that changed anything."""
+        if not self.solving:
+            return None
+        t0 = time.perf_counter()
+        merged = _Merged()
+        error = None
+        try:
+            merged.add(self._tracker.poll())
+        except Exception as exc:  # noqa: BLE001 - reported
+            error = f'tracker poll failed: {type(exc).__name__}: {exc}'
+        if not (merged.tracks or merged.unassigned or merged.committed or error):
+            return None
+        return self._answer(merged, [], time.perf_counter() - t0, error)
+
+    def flush(self, now: float) -> Answer:
+        t0 = time.perf_counter()
+        merged = _Merged()
+        error = None
+        if self._tracker is not None:
+            try:
+                merged.add(self._tracker.flush())
+            except Exception as exc:  # noqa: BLE001 - reported
+                error = f'tracker flush failed: {type(exc).__name__}: {exc}'
+            self.counts['flushes'] += 1
+        answer = self._answer(merged, [], time.perf_counter() - t0, error, flushed=True)
+        answer.flushed = True
+        return answer
+
+    # --- output ---------------------------------------------------------------------------
+    def _answer(
+        self, merged: _Merged, received, solve_time: float, error, flushed: bool = False
+    ) -> Answer:
+        rows = self._rows
+        tracks = []
+        missing = 0
+        for track_id, (status, keys) in merged.tracks.items():
+            held = []
+            for k in keys.tolist():
+                row = rows.get(k)
+                if row is None:
+                    missing += 1
+                    continue
+                held.append(tuple(row))
+                old = self._published.get(k)
+                if old is not None and old != track_id:
+                    self.counts['links_revised'] += 1
+                self._published[k] = track_id
+            tracks.append((track_id, status, held))
+            self._count_status(track_id, status)
+        unassigned = []
+        for k in merged.unassigned:
+            if k in merged.in_tracks:
+                continue
+            row = rows.get(k)
+            if row is None:
+                missing += 1
+                continue
+            unassigned.append(tuple(row))
+            old = self._published.get(k)
+            if old is not None and old != -1:
+                self.counts['links_revised'] += 1
+            self._published[k] = -1
+        if missing:
+            self.counts['missing_rows'] = self.counts.get('missing_rows', 0) + missing
+        if merged.committed_until > self.committed_until:
+            self.committed_until = merged.committed_until
+        if flushed and math.isfinite(self.newest):
+            # every detection seen is committed, the newest one included
+            self.committed_until = max(self.committed_until, self.newest + 1e-9)
+        data = None
+        if tracks or unassigned or flushed:
+            committed = self.committed_until
+            if committed == math.inf:
+                committed = self.newest + 1e-9
+            data = self._encode(
+                method=self._settings.method,
+                tracks=tracks,
+                unassigned=unassigned,
+                committed_until_ns=_to_ns(committed),
+                solve_time=solve_time,
+            )
+        self._forget(merged)
+        stats = dict(self.counts)
+        if self._tracker is not None:
+            counters = self._tracker.stats
+            counters = counters() if callable(counters) else counters
+            stats.update({f'tracker.{k}': v for k, v in counters.items()})
+        if self._reorder is not None:
+            stats['reorder_held'] = len(self._reorder)
+            stats['reorder_timeouts'] = self._reorder.released_by_timeout
+        return Answer(
+            data=data,
+            received_at=received,
+            tracks=len(tracks),
+            unassigned=len(unassigned),
+            solve_time=solve_time,
+            committed_until=self.committed_until,
+            newest_stamp=self.newest,
+            working_set=0 if self._tracker is None else int(self._tracker.working_set),
+            held=len(rows),
+            stats=stats,
+            error=error,
+        )
+
+    def _count_status(self, track_id: int, status: int) -> None:
+        if status == CONFIRMED and track_id not in self._confirmed_ids:
+            self._confirmed_ids.add(track_id)
+            self.counts['tracks_confirmed'] += 1
+        elif status == FINAL:
+            if track_id not in self._confirmed_ids:
+                self.counts['tracks_confirmed'] += 1
+            self._confirmed_ids.discard(track_id)
+            self.counts['tracks_final'] += 1
+
+    def _forget(self, merged: _Merged) -> None:
+        """Drop the data of detections that can never be published again."""
+        for track_id, (status, keys) in merged.tracks.items():
+            if status == FINAL:
+                self._final[track_id] = 0
+                for k in keys.tolist():
+                    if k in self._committed:
+                        self._drop(k)
+                    else:
+                        self._final[track_id] += 1
+                if not self._final[track_id]:
+                    del self._final[track_id]
+        for k, track_id in merged.committed:
+            if k not in self._rows:
+                continue
+            if track_id < 0 or track_id in self._final:
+                self._drop(k)
+                if track_id in self._final:
+                    self._final[track_id] -= 1
+                    if self._final[track_id] <= 0:
+                        del self._final[track_id]
+            else:
+                self._committed[k] = track_id
+
+    def _drop(self, key: int) -> None:
+        self._rows.pop(key, None)
+        self._committed.pop(key, None)
+        self._published.pop(key, None)
+
+
+class _Merged:
+    """The updates of one batch folded into one: the latest state of each changed track."""
+
+    def __init__(self) -> None:
+        self.tracks: dict[int, tuple[int, np.ndarray]] = {}
+        self.in_tracks: set[int] = set()
+        self.unassigned: dict[int, None] = {}
+        self.committed: list[tuple[int, int]] = []
+        self.committed_until = -math.inf
+
+    def add(self, update) -> None:
+        for t in update.tracks:
+            keys = np.asarray(t.keys, np.int64)
+            self.tracks[int(t.track_id)] = (int(t.status), keys)
+            self.in_tracks.update(keys.tolist())
+        for k in np.asarray(update.unassigned, np.int64).tolist():
+            self.unassigned[k] = None
+            self.in_tracks.discard(k)
+        rows = np.asarray(update.committed, np.int64).reshape(-1, 2)
+        self.committed.extend((int(a), int(b)) for a, b in rows.tolist())
+        self.committed_until = max(self.committed_until, float(update.committed_until))
+
+
+def _to_ns(seconds: float) -> int:
+    return int(round(seconds * NS_PER_S)) if math.isfinite(seconds) else 0
+
+
+def encode_tracks(**kwargs) -> bytes:
+    """A stream TrackArray, serialized (runs in the tracker process)."""
+    from rclpy.serialization import serialize_message
+
+    from mlkm_ros.conversions import stream_tracks_to_msg
+
+    msg = stream_tracks_to_msg(stamp_ns=time.time_ns(), **kwargs)
+    return serialize_message(msg)
