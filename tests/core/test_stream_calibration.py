@@ -113,3 +113,46 @@ def test_the_stream_calibrates_once_every_calibration_every_windows(monkeypatch)
     assert isinstance(tracker._model, CarriedModel)
     assert tracker.params is tracker._model.params  # the immediate link uses it too
     assert accuracy(labels, d.target).accuracy >= 0.99
+
+
+def partition(labels: dict) -> list[list[int]]:
+    tracks: dict = {}
+    for key, track in labels.items():
+        if track >= 0:
+            tracks.setdefault(track, []).append(key)
+    return sorted(sorted(g) for g in tracks.values())
+
+
+def test_deferred_solves_commit_the_same_later():
+    """While ``deferring``, due windows wait (up to MAX_DEFERRED boundaries); once it is off
+    they are solved in order and the committed association (which detections share a track,
+    which are false alarms; ids follow the arrival of tracks) is that of a tracker that never
+    deferred."""
+    from mlkm_core.streaming.tracker import MAX_DEFERRED
+
+    ds = simulate(SimConfig(n_targets=50, n_sensors=20, **CLUTTER), 1)
+    d = ds.detections
+    order = np.lexsort((d.sensor_index, d.stamp)).tolist()
+
+    def run(defer_until: int) -> tuple[dict, list[int]]:
+        tracker = StreamTracker(ds.layout, StreamConfig(solve_interval=5.0))
+        labels, solves = {}, []
+        for i, k in enumerate(order):
+            tracker.deferring = i < defer_until
+            u = tracker.push(k, int(d.sensor_index[k]), float(d.stamp[k]), float(d.velocity[k]))
+            labels.update(u.committed.tolist())
+            solves.append(tracker.stats()['solves'])
+        labels.update(tracker.flush().committed.tolist())
+        return labels, solves
+
+    plain, plain_solves = run(0)
+    half = len(order) // 2
+    deferred, deferred_solves = run(half)
+    assert partition(deferred) == partition(plain)
+    assert sorted(k for k, t in deferred.items() if t < 0) == sorted(
+        k for k, t in plain.items() if t < 0
+    )
+    due = plain_solves[half - 1]
+    assert due >= 4  # windows were due while deferring...
+    assert deferred_solves[half - 1] == max(0, due - MAX_DEFERRED)  # ...and waited
+    assert deferred_solves[-1] == plain_solves[-1]

@@ -169,6 +169,12 @@ class TrackerState:
             merged.add(update)
         return self._answer(merged, received, time.perf_counter() - t0, error)
 
+    def defer_solves(self, on: bool) -> None:
+        """Hold due window solves back while a backlog of detections waits (see
+        ``StreamTracker.deferring``)."""
+        if self._tracker is not None:
+            self._tracker.deferring = on
+
     @property
     def solving(self) -> bool:
         return self._tracker is not None and self._tracker.solving

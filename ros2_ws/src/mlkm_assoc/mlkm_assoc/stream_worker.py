@@ -157,13 +157,17 @@ def _serve(items, answers, parent: int, settings: TrackerSettings, solver_ends=N
                 if not items.poll(POLL_PERIOD if state.solving else 1.0):
                     if os.getppid() != parent:
                         return
+                    state.defer_solves(False)
                     _send(answers, state.poll())
                     continue
                 pending.extend(items.recv())
-            while len(pending) < MAX_BATCH and items.poll(0):
+            while len(pending) <= MAX_BATCH and items.poll(0):
                 pending.extend(items.recv())
         except (EOFError, OSError):
             return  # the node is gone
+        # more than a batch waiting: the node is delivering a backlog; the window solves
+        # wait until it is taken (they would take the CPU the node needs to receive it)
+        state.defer_solves(len(pending) > MAX_BATCH)
         for _ in range(min(MAX_BATCH, len(pending))):
             item = pending.popleft()
             if item is None:

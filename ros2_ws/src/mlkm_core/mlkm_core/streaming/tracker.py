@@ -29,6 +29,8 @@ from mlkm_core.types import UNKNOWN_LANE, Layout
 CONTEXT_METHODS = ('assignment', 'multiframe', 'mlkm_robust')
 #: ``anchor_track`` of a context row in a window solve
 CONTEXT = -2
+#: Most due boundaries left unsolved while ``deferring`` (then solves go on regardless) [-].
+MAX_DEFERRED = 30
 
 
 @dataclass
@@ -99,6 +101,10 @@ class StreamTracker(Revisions):
         self._solved = False
         self._newest = -math.inf
         self._stats: Counter = Counter()
+        #: while True, due windows wait (up to MAX_DEFERRED boundaries) instead of being
+        #: solved: the caller is busy taking a backlog of detections, and the solves would
+        #: take the CPU it needs. Only when commits come changes, never what they are.
+        self.deferring = False
 
     # ----------------------------------------------------------------- public surface
     @property
@@ -298,6 +304,8 @@ class StreamTracker(Revisions):
                 return
             last_k = math.floor((self._newest - c.reorder_tolerance) / c.solve_interval)
             if self._next_k > last_k:
+                return
+            if self.deferring and not wait and last_k - self._next_k < MAX_DEFERRED:
                 return
             oldest = min((self._dets[k].stamp for k in self._pending), default=math.inf)
             first_k = math.floor(oldest / c.solve_interval) + 1 if oldest < math.inf else last_k

@@ -170,7 +170,7 @@ def stream_targets(stream: dict) -> list[dict]:
         None if ratio is None else ratio >= 0.7,
         tp.get('status', why)
         if ratio is None
-        else f'{ratio:.2f} ({tp["association_rate"]:.0f} vs {tp["bare_rate"]:.0f} det/s)',
+        else f'{ratio:.3f} ({tp["association_rate"]:.0f} vs {tp["bare_rate"]:.0f} det/s)',
     )
     lag = stream.get('lag') or {}
     for fam, r in (lag.get('families') or {}).items():
