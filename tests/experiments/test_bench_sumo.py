@@ -72,6 +72,27 @@ def test_quick_sumo_part_through_the_cli(tmp_path, monkeypatch):
     assert not (out / 'grid.json').exists()  # only the part asked for ran
 
 
+@pytest.mark.slow
+def test_the_peer_runs_on_the_first_dataset_of_the_chosen_large_cells(tmp_path, monkeypatch):
+    cell = (5, 3)
+    monkeypatch.setitem(sumo.BUDGET, cell, 120.0)
+    monkeypatch.setitem(sumo.LARGE_METHODS, cell, ('assignment',))
+    monkeypatch.setattr(sumo, 'PEER_LARGE', {('highway', 'default', cell): 1})
+    out = sumo.run_sumo(['assignment'], {cell: 2}, lambda msg: None, tmp_path, extra={})
+    assert out['peer_budget_s'] == {'5x3': 120.0}  # no budget of its own: the methods'
+    for c in out['cells']:
+        plain = c['variants']['time_speed']
+        assert plain['assignment']['summary']['n'] == 2
+        if c['scenario'] != 'highway':
+            assert set(plain) == {'assignment'}
+            continue
+        peer = plain[common.PEER]
+        assert peer['datasets'] == 1 and peer['summary']['n'] == 1 and peer['status'] == 'ok'
+        assert c['variants']['lane_length'].keys() == {'assignment'}
+    text = '\n'.join(sumo.report_lines(out))
+    assert '(dataset 1 of 2)' in text
+
+
 def _sleepy_job():
     def job(k: int) -> dict:
         time.sleep(0.1 if k == 0 else 30.0)
