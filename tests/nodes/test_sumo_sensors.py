@@ -174,6 +174,13 @@ def test_episodes_live_equal_offline_cli(
     done = spin_until(listener.executor, lambda: len(listener.scores) >= EPISODES, 60.0)
     assert done, sumo.output() + assoc.output() + scorer.output()
     assert sumo.proc.wait(30) == 0, sumo.output()
+
+    def announced() -> int:
+        ended = [i for i in listener.infos if i.status == EpisodeInfo.STATUS_ENDED]
+        return sum(sum(i.detection_counts) for i in ended) if len(ended) == EPISODES else -1
+
+    # the scorer's copy of the truth can be complete before the listener's (a loaded machine)
+    spin_until(listener.executor, lambda: len(listener.truth) >= announced() > 0, 30.0)
     live = [(listener.scores[k].correct, listener.scores[k].total) for k in range(EPISODES)]
     assert live == expected
     assert all(listener.scores[k].truth_complete for k in range(EPISODES))
