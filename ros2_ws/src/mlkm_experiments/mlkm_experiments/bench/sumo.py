@@ -6,7 +6,7 @@ method sees every dataset twice: with (time, speed) only (``lane`` and ``length`
 from the detections) and with lane and vehicle length added. Each (method, cell, variant)
 runs in a child process with a time budget, as in the grid. The peer uses (time, speed) only,
 so it runs on the first variant alone. It has budgets of its own (``PEER_BUDGET``: it takes
-20-40 s per 50 x 20 dataset and 10-30 minutes per 200 x 50 one); on the
+15-40 s per 50 x 20 dataset and about 40 minutes per 200 x 50 one); on the
 larger cells it runs on the first dataset of ``PEER_LARGE`` only, which is enough for the
 speed comparison at 200 x 50 and keeps the part's wall time near an hour.
 """
@@ -249,7 +249,7 @@ def report_lines(sumo: dict) -> list[str]:
         'set up as in the peer part, with the nominal speed and the deletion time fitted to '
         'each dataset (`peer.config_for`: median speed; 1.5 x the longest station gap at the '
         '5th-percentile speed); it uses time and speed only, so it runs once, and on the '
-        'larger cells it runs on the first dataset of the highway at 200 x 50 only (10-30 '
+        'larger cells it runs on the first dataset of the highway at 200 x 50 only (about 40 '
         'minutes each); the targets compare it with the best method on the datasets it '
         'finished.',
         '',
