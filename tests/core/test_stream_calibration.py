@@ -82,11 +82,9 @@ def test_a_carried_model_gives_the_calibrating_solve_its_own_result():
     assert accuracy(first.labels, ds.detections.target).accuracy > 0.95
 
 
-def test_the_stream_calibrates_once_every_calibration_every_windows(monkeypatch):
-    """multiframe on a long clutter stream: the method's model is estimated at the first
-    window with enough detections and then once every ``calibration_every`` windows; the
-    windows in between get it carried over, without the context, and the commits stay as
-    accurate as batch."""
+def _calibrations(monkeypatch, config: StreamConfig):
+    """multiframe on a clutter stream (50 targets, 20 sensors): the sizes of the inputs its
+    model was estimated on, the solves before the flush, the tracker and the labels."""
     calls = []
     estimate = solve_module.estimate_params
 
@@ -97,22 +95,42 @@ def test_the_stream_calibrates_once_every_calibration_every_windows(monkeypatch)
     monkeypatch.setattr(solve_module, 'estimate_params', counting)
     ds = simulate(SimConfig(n_targets=50, n_sensors=20, **CLUTTER), 0)
     d = ds.detections
-    config = StreamConfig(calibration_every=3)
     tracker = StreamTracker(ds.layout, config)
     labels = np.full(len(d), -1)
     for k in np.lexsort((d.sensor_index, d.stamp)).tolist():
         u = tracker.push(k, int(d.sensor_index[k]), float(d.stamp[k]), float(d.velocity[k]))
         for key, track in u.committed.tolist():
             labels[key] = track
-    solves_before_flush = tracker.stats()['solves']
+    solves = tracker.stats()['solves']
     for key, track in tracker.flush().committed.tolist():
         labels[key] = track
-    window_calls = len(calls) - 1  # the flush calibrates on its window
-    assert solves_before_flush >= 9
-    assert window_calls <= math.ceil(solves_before_flush / 3) + 1
+    return calls[:-1], solves, tracker, accuracy(labels, d.target).accuracy  # -1: the flush
+
+
+def test_the_stream_calibrates_once_every_calibration_every_windows(monkeypatch):
+    """The method's model is estimated at every window until one was estimated on a full
+    context (``context_size`` rows), then once every ``calibration_every`` windows; the
+    windows in between get it carried over, without the context, and the commits stay as
+    accurate as batch."""
+    config = StreamConfig(calibration_every=3)
+    calls, solves, tracker, acc = _calibrations(monkeypatch, config)
+    full = next(i for i, n in enumerate(calls) if n >= config.context_size)
+    assert solves >= 9 and full < solves - 3
+    assert len(calls) - full <= math.ceil((solves - full) / 3) + 1
     assert isinstance(tracker._model, CarriedModel)
     assert tracker.params is tracker._model.params  # the immediate link uses it too
-    assert accuracy(labels, d.target).accuracy >= 0.99
+    assert acc >= 0.99
+
+
+def test_a_model_from_fewer_rows_than_a_full_context_is_not_carried(monkeypatch):
+    """A road filling up: no model was estimated on ``context_size`` rows, so every window
+    calibrates (a model from the first sparse windows carried over for a minute of a short
+    stream cost 3 points on SUMO ramps)."""
+    calls, solves, _, acc = _calibrations(
+        monkeypatch, StreamConfig(calibration_every=3, context_size=100_000)
+    )
+    assert solves >= 9 and len(calls) == solves
+    assert max(calls) < 100_000 and acc >= 0.99
 
 
 def partition(labels: dict) -> list[list[int]]:

@@ -32,9 +32,10 @@ Mechanism
    most recently ended tracks (``context_size``) so that sparse traffic still gives them
    enough tracks (their clusters are not used); the windows in between get that model
    carried over (``solve.CarriedModel``; not a model that learnt a queue's order within
-   lanes, which is bound to its own detections). With a lag longer than the input nothing
-   is committed before ``flush``, whose window is the whole input and calibrates: the
-   stream gives exactly the batch association.
+   lanes, which is bound to its own detections, and not one estimated on fewer rows than a
+   full context, as on a road that is filling up: then the next window calibrates again).
+   With a lag longer than the input nothing is committed before ``flush``, whose window is
+   the whole input and calibrates: the stream gives exactly the batch association.
 3. **Stitching onto stable ids.** The window's clusters are mapped back through the anchors:
    a cluster holding the last committed detection of an open track continues that track (of
    several such tracks, each takes the cluster's window detections from its own last

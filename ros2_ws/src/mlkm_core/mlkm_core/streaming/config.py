@@ -47,7 +47,8 @@ class StreamConfig:
     # recalibrate the motion model every this many solves; in between, the windows of the
     # calibrating methods get the last model carried over (a calibration was two thirds of a
     # multiframe window solve; stream vs batch at lag 15 s: clutter 99.72 vs 99.75 %, SUMO
-    # highway 99.12 vs 99.12 %)
+    # highway 99.12 vs 99.12 %); a model estimated on fewer than context_size rows is not
+    # carried (the first windows of a road filling up calibrate each time)
     calibration_every: int = 6
     segment_size: int = 5  # K of the MLKM methods (sensors per segment)
     seed: int = 0  # random_state of the K-means methods

@@ -95,6 +95,9 @@ class StreamTracker(Revisions):
         self._history: deque = deque(maxlen=config.calibration_size)
         self._params = MotionParams()
         self._calibrated_at: int | None = None
+        # rows the carried model was calibrated on: one calibrated on fewer than a full
+        # context (a road filling up) is not carried, the next window calibrates again
+        self._calibrated_rows = 0
         self._model: CarriedModel | None = None  # the method's, from its last calibrating solve
         self._cost: LinkCost | None = None  # the immediate link's cost under _params
         self._next_k: int | None = None
@@ -384,6 +387,7 @@ class StreamTracker(Revisions):
             and not final
             and self._model is not None
             and self._model.reusable
+            and self._calibrated_rows >= c.context_size
             and k - self._calibrated_at < c.calibration_every
         )
         context = [e[2] for e in self._context] if calibrates and not carry else []
@@ -432,6 +436,7 @@ class StreamTracker(Revisions):
                 # the method's model also drives the immediate link and the ends of tracks
                 self._model, self._params = solution.model, solution.model.params
                 self._calibrated_at = p.k
+                self._calibrated_rows = len(p.problem.detections)
             slack = 6 * math.sqrt(2) * self._params.stamp_noise
             d = p.problem.detections
             own, groups = owners(
