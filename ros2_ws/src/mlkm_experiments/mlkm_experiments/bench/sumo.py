@@ -120,9 +120,8 @@ def run_sumo(
         cache = DatasetCache(cache_dir or Path(tmp))
         for scenario, measurement, cell, n in cases:
             cell_methods = [m for m in methods if m in LARGE_METHODS.get(cell, methods)]
-            peer_n = PEER_LARGE.get((scenario, measurement, cell), 0)
-            if cell not in LARGE_METHODS:
-                peer_n = n
+            large = cell in LARGE_METHODS
+            peer_n = PEER_LARGE.get((scenario, measurement, cell), 0) if large else n
             if version is not None and peer_n:
                 cell_methods.append(PEER)
             out['cells'].append(
@@ -181,15 +180,15 @@ def _run_cell(
                 continue
             t1 = time.monotonic()
             job = sumo_job(m, paths, variant, measurement, config)
-            if m == PEER:
-                rows, status = run_budgeted(job, min(peer_n, n), _peer_budget(cell))
-            else:
-                rows, status = run_budgeted(job, n, BUDGET[cell])
+            count, budget = (
+                (min(peer_n, n), _peer_budget(cell)) if m == PEER else (n, BUDGET[cell])
+            )
+            rows, status = run_budgeted(job, count, budget)
             entry['variants'][variant][m] = {
                 'summary': summarise(rows),
                 'status': status,
                 'runs': rows,
-                'datasets': min(peer_n, n) if m == PEER else n,
+                'datasets': count,
             }
             s = entry['variants'][variant][m]['summary']
             log(

@@ -159,6 +159,7 @@ def sumo_targets(sumo: dict) -> list[dict]:
         '; '.join(worse) or f'all {compared} cells and variants',
     )
     speed = []
+    budget = sumo.get('peer_budget_s', sumo['budget_s']).get('200x50', 0.0)
     for c in cells:
         if (c['vehicles'], c['stations']) != (200, 50):
             continue
@@ -168,7 +169,6 @@ def sumo_targets(sumo: dict) -> list[dict]:
         best = _first(c, ts, BEST, max(peer['summary']['n'], 1))
         if best is None:
             continue
-        budget = sumo.get('peer_budget_s', sumo['budget_s'])['200x50']
         secs, bound = _peer_seconds(peer, budget)
         speed.append((secs / best['seconds_mean'], bound, _cell_name(c)))
     if speed:
