@@ -198,6 +198,38 @@ def test_speed_jumps_are_fitted_where_they_happen_and_off_where_not():
     assert estimate_params(ds.layout, ds.detections).jump_rate == 0.0
 
 
+def drifting_traffic(seed: int, drift: float, headway: float = 5.0):
+    """Vehicles every ``headway`` s whose cruise speed drifts (a random walk, std ``drift`` m/s
+    per km) with a fluctuation of 1 m/s around it, past 30 sensors 200 m apart (the drift
+    shows over a few km); exact travel times, small measurement noise."""
+    rng = np.random.default_rng(seed)
+    n_sensors = 30
+    layout = Layout(SPACING * (n_sensors + 1), SPACING * np.arange(1, n_sensors + 1))
+    step = drift * math.sqrt(SPACING / 1000)
+    sensor, stamp, speed, target = [], [], [], []
+    for k in range(150):
+        t = headway * k
+        cruise = rng.uniform(24, 34)
+        v = cruise
+        for s in range(n_sensors):
+            t += SPACING / v
+            sensor.append(s)
+            stamp.append(t + rng.normal(0, 0.05))
+            speed.append(v + rng.normal(0, 0.1))
+            target.append(k)
+            cruise = float(np.clip(cruise + rng.normal(0, step), 8, 50))
+            v = cruise + rng.normal(0, 1.0)
+    return layout, Detections(np.array(sensor), np.array(stamp), np.array(speed), np.array(target))
+
+
+def test_cruise_speed_drift_is_fitted_where_it_happens_and_off_where_not():
+    layout, d = drifting_traffic(3, drift=4.0)
+    assert estimate_params(layout, d).drift == pytest.approx(4.0, rel=0.5)
+    # the simulator's targets keep their cruise speed: no drift
+    ds = simulate(SimConfig(n_targets=50, n_sensors=20), 1)
+    assert estimate_params(ds.layout, ds.detections).drift == 0.0
+
+
 @pytest.mark.parametrize('method', ['assignment', 'multiframe'])
 def test_associators_gain_from_the_jumps(method, monkeypatch):
     layout, d = jumpy_traffic(5, jump_prob=0.15, jump_sigma=5.0)

@@ -111,3 +111,34 @@ def test_pairwise_cost_hand_computed():
     assert nll[0] == pytest.approx(
         0.5 * (want_d2 + math.log(var_t * var_u)) + math.log(2 * math.pi), rel=1e-9
     )
+
+
+def test_drifting_cruise_speed_adds_a_random_walk_before_the_step():
+    """With ``drift`` (std of the cruise speed's change per km), the prediction equals the
+    reference filter's with the random walk of the cruise slowness, variance
+    (drift m^2)^2 d / 1000, added before the step: Q + q F[:, 2] F[:, 2]^T."""
+    p = MotionParams(sigma=3.0, length=250.0, stamp_noise=0.15, velocity_noise=0.4, drift=2.5)
+    u = 1.0 / V
+    model = KalmanModel(p)
+    model.grow(1)
+    track = np.array([0])
+    model.start(track, X[0], T[:1], u[:1])
+    kf = KalmanFilter(dim_x=3, dim_z=2)
+    kf.H = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    kf.x, kf.P = model.mean[0].copy(), model.cov[0].copy()
+    for k in range(1, X.size):
+        d = X[k] - X[k - 1]
+        F, Q = reference_matrices(p, d, kf.x[2])
+        q = (2.5 * kf.x[2] ** 2) ** 2 * d / 1000.0
+        kf.predict(F=F, Q=Q + q * np.outer(F[:, 2], F[:, 2]))
+        pred = model.predict(track, X[k])
+        np.testing.assert_allclose(pred.cov[0], kf.P, rtol=1e-9, atol=1e-15)
+        nll, _ = model.cost(pred, T[k : k + 1], u[k : k + 1])
+        kf.update(np.array([T[k], u[k]]), R=reference_noise(p, u[k]))
+        assert nll[0] == pytest.approx(-kf.log_likelihood, rel=1e-9)
+        model.update(pred, T[k : k + 1], u[k : k + 1])
+    # the drift widens the prediction of the cruise slowness, so it weighs the far past less
+    still = KalmanModel(P)
+    still.grow(1)
+    still.start(track, X[0], T[:1], u[:1])
+    assert model.predict(track, 900.0).cov[0, 2, 2] > still.predict(track, 900.0).cov[0, 2, 2]

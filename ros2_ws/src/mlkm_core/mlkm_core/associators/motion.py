@@ -22,7 +22,9 @@ Two models, chosen by name (:func:`make_model`):
   position with the state (tau, u, m): passage time, slowness and the target's own cruise
   slowness. The exact OU transition (and its integral, for tau) is used, so every past
   detection of the track informs the prediction: the cruise slowness m is learnt over several
-  sensors (the speed reverts to it) and noisy stamps/speeds are averaged.
+  sensors (the speed reverts to it) and noisy stamps/speeds are averaged. In car-following
+  traffic the cruise speed itself drifts with the traffic around a vehicle (``drift``, a
+  random walk of m in distance), so that detections far upstream weigh less.
 """
 
 from __future__ import annotations
@@ -59,6 +61,9 @@ class MotionParams:
     # by N(0, jump_sigma^2) at a uniformly distributed point; 0 = pure OU model
     jump_rate: float = 0.0  # [1/m]
     jump_sigma: float = 4.0  # [m/s]
+    # the cruise speed itself drifts (a random walk in distance: car following adapts it to
+    # the traffic around), std of its change over 1 km [m/s]; 0 = each target keeps its own
+    drift: float = 0.0
     # open road, per sensor: the first sensor a track seen first there could have passed (after
     # the last entry upstream) and the last one a track seen last there could pass (before the
     # first exit downstream); None: a closed road (0 and n_sensors - 1)
@@ -362,6 +367,13 @@ class KalmanModel(MotionModel):
         cov[:, 0, 1] += q01
         cov[:, 1, 0] += q01
         cov[:, 1, 1] += su2 * (1 - a * a)
+        drift = self._par('drift', tracks)
+        if np.any(np.asarray(drift) > 0):
+            # the cruise slowness's random walk, taken at the start of the interval (an upper
+            # bound of its effect on the passage time and slowness)
+            q = (drift * m[:, 2] ** 2) ** 2 * d / 1000.0
+            v = np.column_stack([f02, f12, np.ones_like(f12)])
+            cov += q[:, None, None] * v[:, :, None] * v[:, None, :]
         rate = self._par('jump_rate', tracks)
         if np.all(np.asarray(rate) <= 0):
             return Prediction(tracks, x, mean, cov)
