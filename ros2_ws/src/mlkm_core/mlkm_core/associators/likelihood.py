@@ -13,7 +13,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from mlkm_core.associators.attributes import AttributeState
-from mlkm_core.associators.motion import KalmanModel, MotionParams
+from mlkm_core.associators.kalman import KalmanModel
+from mlkm_core.associators.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
 

@@ -18,7 +18,7 @@ Two models, chosen by name (:func:`make_model`):
   var = 2 sigma_t^2 + dx^2 (var u1 + var u2) / 4 + sigma_u^2 dx^3 / (6 L) (a Brownian bridge
   of the fluctuation between two known ends), and the slowness change e_u = u2 - u1,
   var = 2 var_u,noise + 2 sigma_u^2 (1 - exp(-dx / L)) (the stationary OU increment).
-* ``kalman`` (:class:`KalmanModel`, used by ``multiframe``): a track is a Kalman filter over
+* ``kalman`` (``kalman.KalmanModel``, used by ``multiframe``): a track is a Kalman filter over
   position with the state (tau, u, m): passage time, slowness and the target's own cruise
   slowness. The exact OU transition (and its integral, for tau) is used, so every past
   detection of the track informs the prediction: the cruise slowness m is learnt over several
@@ -198,6 +198,8 @@ def register_model(cls: type[MotionModel]) -> type[MotionModel]:
 
 def make_model(name: str, params: MotionParams) -> MotionModel:
     """A new, empty motion model chosen by name (``pairwise`` or ``kalman``)."""
+    from mlkm_core.associators import kalman  # noqa: F401  (registers ``kalman``)
+
     if name not in _MODELS:
         raise ValueError(f'unknown motion model {name!r}; choose one of {", ".join(_MODELS)}')
     return _MODELS[name](params)
@@ -278,191 +280,3 @@ class PairwiseModel(MotionModel):
 
     def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
         self.start(pred.tracks, pred.x, t, u)
-
-
-@register_model
-class KalmanModel(MotionModel):
-    """Track = Kalman filter on (tau, u, m) with the exact OU-in-distance transition.
-
-    ``rows`` (optional) gives per-track parameter sets: arrays of sigma, length, stamp and
-    velocity noise, one entry per track (used to score many parameter sets in one pass).
-    """
-
-    name = 'kalman'
-
-    def __init__(self, params: MotionParams, rows: dict[str, np.ndarray] | None = None) -> None:
-        super().__init__(params)
-        self.rows = rows
-        self.x = np.zeros(0)
-        self.mean = np.zeros((0, 3))
-        self.cov = np.zeros((0, 3, 3))
-
-    def load(self, x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
-        """Replace the state of every track (copies), e.g. to continue saved filters."""
-        self.x, self.mean, self.cov = x.copy(), mean.copy(), cov.copy()
-
-    def _par(self, name: str, tracks: np.ndarray) -> float | np.ndarray:
-        if self.rows is not None and name in self.rows:
-            return self.rows[name][tracks]
-        return getattr(self.p, name)
-
-    def grow(self, n: int) -> None:
-        self.x = np.concatenate([self.x, np.zeros(n)])
-        self.mean = np.concatenate([self.mean, np.zeros((n, 3))])
-        self.cov = np.concatenate([self.cov, np.zeros((n, 3, 3))])
-
-    def noise(self, tracks: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Measurement noise variances (stamp, slowness) of detections with slowness u."""
-        st = np.maximum(self._par('stamp_noise', tracks), FLOOR_T)
-        sv = np.maximum(self._par('velocity_noise', tracks), FLOOR_V)
-        return st * st + 0 * u, (sv * u * u) ** 2
-
-    def start(
-        self, tracks: np.ndarray, x: float | np.ndarray, t: np.ndarray, u: np.ndarray
-    ) -> None:
-        rt, ru = self.noise(tracks, u)
-        sigma, length = self._par('sigma', tracks), self._par('length', tracks)
-        # deviation from the cruise speed: zero at the road entry, OU-grown up to x
-        dev = (sigma * u * u) ** 2 * (1 - np.exp(-2 * np.asarray(x) / length))
-        cov = np.zeros((tracks.size, 3, 3))
-        cov[:, 0, 0] = rt
-        cov[:, 1, 1] = ru
-        cov[:, 1, 2] = cov[:, 2, 1] = ru
-        cov[:, 2, 2] = ru + dev
-        self.x[tracks] = x
-        self.mean[tracks] = np.column_stack([t, u, u])
-        self.cov[tracks] = cov
-
-    def predict(self, tracks: np.ndarray, x: float | np.ndarray) -> Prediction:
-        d = x - self.x[tracks]
-        L = self._par('length', tracks)
-        a = np.exp(-d / L)
-        z = d / L
-        small = z < 1e-3
-        zs = np.where(small, z, 0.0)
-        i_var = (
-            np.where(small, (2 / 3) * zs**3 - 0.5 * zs**4, 2 * z - 3 + 4 * a - a * a) * L * L
-        )  # Var of int of OU / sigma_u^2
-        b = L * (1 - a)
-        m = self.mean[tracks]
-        P = self.cov[tracks]
-        su2 = (self._par('sigma', tracks) * m[:, 2] ** 2) ** 2
-        f01, f02, f11, f12 = b, d - b, a, 1 - a
-        mean = np.column_stack(
-            [m[:, 0] + f01 * m[:, 1] + f02 * m[:, 2], f11 * m[:, 1] + f12 * m[:, 2], m[:, 2]]
-        )
-        if self.p.delay is not None:
-            mean[:, 0] += self.p.extra_time(self.x[tracks], x)
-        # F P F^T with F = [[1, f01, f02], [0, f11, f12], [0, 0, 1]], done by rows
-        r0 = P[:, 0, :] + f01[:, None] * P[:, 1, :] + f02[:, None] * P[:, 2, :]
-        r1 = f11[:, None] * P[:, 1, :] + f12[:, None] * P[:, 2, :]
-        r2 = P[:, 2, :]
-        cov = np.empty_like(P)
-        for i, r in enumerate((r0, r1, r2)):
-            cov[:, i, 0] = r[:, 0] + f01 * r[:, 1] + f02 * r[:, 2]
-            cov[:, i, 1] = f11 * r[:, 1] + f12 * r[:, 2]
-            cov[:, i, 2] = r[:, 2]
-        cov[:, 0, 0] += su2 * np.maximum(i_var, 0)
-        q01 = su2 * L * (1 - a) ** 2
-        cov[:, 0, 1] += q01
-        cov[:, 1, 0] += q01
-        cov[:, 1, 1] += su2 * (1 - a * a)
-        drift = self._par('drift', tracks)
-        if np.any(np.asarray(drift) > 0):
-            # the cruise slowness's random walk, taken at the start of the interval (an upper
-            # bound of its effect on the passage time and slowness)
-            q = (drift * m[:, 2] ** 2) ** 2 * d / 1000.0
-            v = np.column_stack([f02, f12, np.ones_like(f12)])
-            cov += q[:, None, None] * v[:, :, None] * v[:, None, :]
-        rate = self._par('jump_rate', tracks)
-        if np.all(np.asarray(rate) <= 0):
-            return Prediction(tracks, x, mean, cov)
-        # a speed jump at a uniform point of the interval: var vj in slowness, vj d^2 / 3 in
-        # passage time, covariance vj d / 2
-        vj = (self._par('jump_sigma', tracks) * m[:, 2] ** 2) ** 2
-        pj = -np.expm1(-rate * d) + 0 * d
-        jump = np.column_stack([pj, vj * d * d / 3, vj * d / 2, vj])
-        return Prediction(tracks, x, mean, cov, jump)
-
-    def gate_window(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
-        rt, _ = self.noise(pred.tracks, pred.mean[:, 1])
-        var = pred.cov[:, 0, 0] + rt
-        if pred.jump is not None:
-            var = var + pred.jump[:, 1]
-        return pred.mean[:, 0], np.sqrt(self.p.gate * var)
-
-    @staticmethod
-    def _with_jump(cov: np.ndarray, jump: np.ndarray) -> np.ndarray:
-        out = cov.copy()
-        out[:, 0, 0] += jump[:, 1]
-        out[:, 0, 1] += jump[:, 2]
-        out[:, 1, 0] += jump[:, 2]
-        out[:, 1, 1] += jump[:, 3]
-        return out
-
-    @staticmethod
-    def _cost(
-        mean: np.ndarray, cov: np.ndarray, rt: np.ndarray, ru: np.ndarray, t: np.ndarray, u
-    ) -> tuple[np.ndarray, np.ndarray]:
-        s00 = cov[:, 0, 0] + rt
-        s11 = cov[:, 1, 1] + ru
-        s01 = cov[:, 0, 1]
-        det = s00 * s11 - s01 * s01
-        y0 = t - mean[:, 0]
-        y1 = u - mean[:, 1]
-        d2 = (s11 * y0 * y0 - 2 * s01 * y0 * y1 + s00 * y1 * y1) / det
-        return 0.5 * (d2 + np.log(det)) + LOG2PI, d2
-
-    def cost(
-        self, pred: Prediction, t: np.ndarray, u: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        rt, ru = self.noise(pred.tracks, u)
-        nll, d2 = self._cost(pred.mean, pred.cov, rt, ru, t, u)
-        if pred.jump is None:
-            return nll, d2
-        cov1 = self._with_jump(pred.cov, pred.jump)
-        nll1, d21 = self._cost(pred.mean, cov1, rt, ru, t, u)
-        return mix_nll(nll, d2, nll1, d21, pred.jump[:, 0])
-
-    @staticmethod
-    def _update(
-        mean: np.ndarray, cov: np.ndarray, rt: np.ndarray, ru: np.ndarray, t: np.ndarray, u
-    ) -> tuple[np.ndarray, np.ndarray]:
-        s00 = cov[:, 0, 0] + rt
-        s11 = cov[:, 1, 1] + ru
-        s01 = cov[:, 0, 1]
-        det = s00 * s11 - s01 * s01
-        i00, i11, i01 = s11 / det, s00 / det, -s01 / det
-        pc0, pc1 = cov[:, :, 0], cov[:, :, 1]  # P H^T columns
-        k0 = pc0 * i00[:, None] + pc1 * i01[:, None]
-        k1 = pc0 * i01[:, None] + pc1 * i11[:, None]
-        y0 = t - mean[:, 0]
-        y1 = u - mean[:, 1]
-        new_mean = mean + k0 * y0[:, None] + k1 * y1[:, None]
-        new_cov = cov - k0[:, :, None] * cov[:, 0, None, :] - (k1[:, :, None] * cov[:, 1, None, :])
-        return new_mean, new_cov
-
-    def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
-        mean, cov, tracks = pred.mean, pred.cov, pred.tracks
-        rt, ru = self.noise(tracks, u)
-        m0, c0 = self._update(mean, cov, rt, ru, t, u)
-        if pred.jump is not None:
-            # the mixture posterior collapsed to its first two moments
-            cov1 = self._with_jump(cov, pred.jump)
-            nll0, _ = self._cost(mean, cov, rt, ru, t, u)
-            nll1, _ = self._cost(mean, cov1, rt, ru, t, u)
-            pj = pred.jump[:, 0]
-            with np.errstate(divide='ignore', invalid='ignore'):
-                z = np.log(pj) - nll1 - (np.log1p(-pj) - nll0)
-            w1 = np.where(np.isfinite(z), 1 / (1 + np.exp(-np.clip(z, -50, 50))), 0.0)
-            m1, c1 = self._update(mean, cov1, rt, ru, t, u)
-            w0 = 1 - w1
-            mm = w0[:, None] * m0 + w1[:, None] * m1
-            e0, e1 = m0 - mm, m1 - mm
-            c0 = w0[:, None, None] * (c0 + e0[:, :, None] * e0[:, None, :]) + w1[:, None, None] * (
-                c1 + e1[:, :, None] * e1[:, None, :]
-            )
-            m0 = mm
-        self.mean[tracks] = m0
-        self.cov[tracks] = c0
-        self.x[tracks] = pred.x

@@ -3,7 +3,7 @@
 Pairwise sequential assignment is already optimal for pairwise costs, so the gain has to come
 from higher-order evidence. Two sources:
 
-1. *Kalman tracks over the road* (``motion.KalmanModel``, run by ``linking.link``). Each track
+1. *Kalman tracks over the road* (``kalman.KalmanModel``, run by ``linking.link``). Each track
    is a Kalman filter on (passage time, slowness, cruise slowness) with the exact
    Ornstein-Uhlenbeck-in-distance transition of the traffic model. The cruise speed, to which
    a target's speed reverts, is learnt from all its past detections, and noisy stamps and
