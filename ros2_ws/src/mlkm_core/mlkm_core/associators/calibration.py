@@ -131,7 +131,7 @@ _JUMP_FIELDS = ('jump_rate', 'jump_sigma')
 _DRIFT_GRID = (0.5, 1.0, 2.0, 4.0, 8.0)
 #: least likelihood gain per detection [nats] for the drift: the product's own simulator,
 #: whose targets keep their cruise speed, shows gains up to 0.022 from the model's
-#: approximations alone; car-following traffic (SUMO, 200 vehicles) 0.04 to 0.13
+#: approximations alone; car-following traffic (SUMO, 200 vehicles) mostly 0.04 to 0.13
 DRIFT_MIN_GAIN = 0.03
 _FIT_BOUNDS = {
     'sigma': (0.05, 50.0),

@@ -22,8 +22,9 @@ from mlkm_core.associators.motion import (
 class KalmanModel(MotionModel):
     """Track = Kalman filter on (tau, u, m) with the exact OU-in-distance transition.
 
-    ``rows`` (optional) gives per-track parameter sets: arrays of sigma, length, stamp and
-    velocity noise, one entry per track (used to score many parameter sets in one pass).
+    ``rows`` (optional) gives per-track parameter sets: arrays of any ``MotionParams`` field
+    the filter reads (sigma, length, the noises, the jumps, the drift), one entry per track
+    (used to score many parameter sets in one pass).
     """
 
     name = 'kalman'
@@ -139,15 +140,21 @@ class KalmanModel(MotionModel):
         return out
 
     @staticmethod
-    def _cost(
+    def _innovation(
         mean: np.ndarray, cov: np.ndarray, rt: np.ndarray, ru: np.ndarray, t: np.ndarray, u
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, ...]:
+        """Innovation covariance S = H P H^T + R as (s00, s11, s01, det S) and the innovation
+        (y0, y1) of the measurement (t, u), per row."""
         s00 = cov[:, 0, 0] + rt
         s11 = cov[:, 1, 1] + ru
         s01 = cov[:, 0, 1]
-        det = s00 * s11 - s01 * s01
-        y0 = t - mean[:, 0]
-        y1 = u - mean[:, 1]
+        return s00, s11, s01, s00 * s11 - s01 * s01, t - mean[:, 0], u - mean[:, 1]
+
+    @classmethod
+    def _cost(
+        cls, mean: np.ndarray, cov: np.ndarray, rt: np.ndarray, ru: np.ndarray, t: np.ndarray, u
+    ) -> tuple[np.ndarray, np.ndarray]:
+        s00, s11, s01, det, y0, y1 = cls._innovation(mean, cov, rt, ru, t, u)
         d2 = (s11 * y0 * y0 - 2 * s01 * y0 * y1 + s00 * y1 * y1) / det
         return 0.5 * (d2 + np.log(det)) + LOG2PI, d2
 
@@ -162,20 +169,15 @@ class KalmanModel(MotionModel):
         nll1, d21 = self._cost(pred.mean, cov1, rt, ru, t, u)
         return mix_nll(nll, d2, nll1, d21, pred.jump[:, 0])
 
-    @staticmethod
+    @classmethod
     def _update(
-        mean: np.ndarray, cov: np.ndarray, rt: np.ndarray, ru: np.ndarray, t: np.ndarray, u
+        cls, mean: np.ndarray, cov: np.ndarray, rt: np.ndarray, ru: np.ndarray, t: np.ndarray, u
     ) -> tuple[np.ndarray, np.ndarray]:
-        s00 = cov[:, 0, 0] + rt
-        s11 = cov[:, 1, 1] + ru
-        s01 = cov[:, 0, 1]
-        det = s00 * s11 - s01 * s01
+        s00, s11, s01, det, y0, y1 = cls._innovation(mean, cov, rt, ru, t, u)
         i00, i11, i01 = s11 / det, s00 / det, -s01 / det
         pc0, pc1 = cov[:, :, 0], cov[:, :, 1]  # P H^T columns
         k0 = pc0 * i00[:, None] + pc1 * i01[:, None]
         k1 = pc0 * i01[:, None] + pc1 * i11[:, None]
-        y0 = t - mean[:, 0]
-        y1 = u - mean[:, 1]
         new_mean = mean + k0 * y0[:, None] + k1 * y1[:, None]
         new_cov = cov - k0[:, :, None] * cov[:, 0, None, :] - (k1[:, :, None] * cov[:, 1, None, :])
         return new_mean, new_cov
