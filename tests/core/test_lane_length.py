@@ -11,7 +11,6 @@ from mlkm_core.associators import AssociatorConfig, available_methods, calibrati
 from mlkm_core.associators.attributes import AttributeParams, estimate_attributes
 from mlkm_core.associators.base import DegradedResultWarning
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.laneorder import LaneOrder
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout
@@ -238,67 +237,6 @@ def test_associators_gain_from_the_jumps(method, monkeypatch):
     pure_ou = accuracy(make_associator(method).associate(layout, d, 120), d.target)
     assert with_jumps.accuracy > 0.98
     assert with_jumps.correct > pure_ou.correct
-
-
-def test_extra_travel_time_of_a_gap_is_found_from_the_data():
-    # road works between sensors 5 and 6: every vehicle loses 15 s there, which the speeds
-    # measured at the sensors (outside the works) do not show
-    layout, cols = background(60, 8)
-    sensor = np.array(cols['sensor'])
-    stamp = np.array(cols['stamp'])
-    stamp[sensor >= 6] += 15.0
-    cols['stamp'] = stamp.tolist()
-    d = detections(cols, lane=False, length=False)
-    p = estimate_params(layout, d)
-    assert p.delay is not None
-    extra = np.diff(p.delay[1])
-    assert extra[5] == pytest.approx(15.0, abs=0.5)
-    assert np.all(np.abs(np.delete(extra, 5)) < 1e-9)
-    labels = make_associator('assignment').associate(layout, d, 60)
-    assert accuracy(labels, d.target).accuracy == 1.0
-
-
-def queue(seed: int):
-    """Two lanes of 40 same-length cars each, 2.5 s apart in a lane; between sensors 5 and 6 a
-    queue delays every car by 20 s plus noise (std 2.5 s) that keeps the order in each lane."""
-    rng = np.random.default_rng(seed)
-    layout = Layout(SPACING * (N_SENSORS + 1), SPACING * np.arange(1, N_SENSORS + 1))
-    cols = {k: [] for k in ('sensor', 'stamp', 'speed', 'target', 'lane', 'length')}
-    for lane in (0, 1):
-        last = -np.inf
-        for k in range(40):
-            t0 = 2.5 * k + 1.2 * lane + rng.uniform(0, 0.3)
-            v = 25.0 + rng.normal(0, 0.3)
-            late = max(20.0 + rng.normal(0, 2.5), last - t0 + 1.5)
-            last = t0 + late
-            for s, x in enumerate(layout.positions):
-                cols['sensor'].append(s)
-                cols['stamp'].append(t0 + x / v + (late if s >= 6 else 0.0))
-                cols['speed'].append(v + rng.normal(0, 0.1))
-                cols['target'].append(40 * lane + k)
-                cols['lane'].append(lane)
-                cols['length'].append(4.5)
-    return layout, cols
-
-
-def test_order_within_a_lane_makes_far_jumps_in_a_queue_expensive():
-    layout, cols = queue(10)
-    d = detections(cols, lane=True, length=False)
-    # learnt from the true tracks: the queue gap is recognised in both lanes
-    order = LaneOrder(layout, d, d.target)
-    assert {(5, 0), (5, 1)} <= set(order.table)
-    at5 = np.array([np.flatnonzero((d.sensor_index == 5) & (d.target == k))[0] for k in range(80)])
-    at6 = np.array([np.flatnonzero((d.sensor_index == 6) & (d.target == k))[0] for k in range(80)])
-    lane0 = np.arange(0, 36)
-    true_cost = order.cost(at5[lane0], at6[lane0])
-    three_ahead = order.cost(at5[lane0], at6[lane0 + 3])
-    assert np.all(true_cost <= -1.0)
-    assert np.all(three_ahead > true_cost + 3.0)
-    # no term across lanes or outside the queue gap
-    assert np.all(order.cost(at5[:5], at6[40:45]) == 0)
-    at3 = np.array([np.flatnonzero((d.sensor_index == 3) & (d.target == k))[0] for k in range(5)])
-    at4 = np.array([np.flatnonzero((d.sensor_index == 4) & (d.target == k))[0] for k in range(5)])
-    assert np.all(order.cost(at3, at4) == 0)
 
 
 @pytest.mark.parametrize('method', available_methods())

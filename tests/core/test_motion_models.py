@@ -9,6 +9,7 @@ means and covariances, same updated state, same innovation log-likelihoods.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from filterpy.kalman import KalmanFilter
 
 from mlkm_core.associators.kalman import KalmanModel
 from mlkm_core.associators.likelihood import sequence_nll
-from mlkm_core.associators.motion import MotionParams, PairwiseModel, make_model
+from mlkm_core.associators.motion import GapDelays, MotionParams, PairwiseModel, make_model
 from mlkm_core.types import Detections, Layout
 
 P = MotionParams(sigma=3.0, length=250.0, stamp_noise=0.15, velocity_noise=0.4)
@@ -143,3 +144,57 @@ def test_drifting_cruise_speed_adds_a_random_walk_before_the_step():
     still.grow(1)
     still.start(track, X[0], T[:1], u[:1])
     assert model.predict(track, 900.0).cov[0, 2, 2] > still.predict(track, 900.0).cov[0, 2, 2]
+
+
+def test_gap_delays_add_up_over_the_gaps_crossed_in_either_direction():
+    """Sensors at 0, 100, 250 and 400 m; gaps with extra times (1, 0, 4) s and variances
+    (0.25, 0, 2.25) s^2."""
+    delays = GapDelays.per_gap(
+        np.array([0.0, 100.0, 250.0, 400.0]), np.array([1.0, 0.0, 4.0]), np.array([0.25, 0, 2.25])
+    )
+    np.testing.assert_allclose(delays.gap_time, [1.0, 0.0, 4.0])
+    np.testing.assert_allclose(delays.gap_var, [0.25, 0.0, 2.25])
+    x1, x2 = np.array([0.0, 100.0, 0.0, 400.0]), np.array([100.0, 250.0, 400.0, 100.0])
+    np.testing.assert_allclose(delays.extra_time(x1, x2), [1.0, 0.0, 5.0, -4.0])
+    np.testing.assert_allclose(delays.extra_var(x1, x2), [0.25, 0.0, 2.5, 2.25])
+    # the road seen backwards: from -400 to -100 m is the forward 100 -> 400 m reversed
+    back = delays.mirrored()
+    assert back.extra_time(-400.0, -100.0) == pytest.approx(4.0)
+    assert back.extra_var(-400.0, -100.0) == pytest.approx(2.25)
+    assert back.extra_time(-100.0, 0.0) == pytest.approx(1.0)
+
+
+def test_a_gap_delay_shifts_and_widens_both_models_predictions():
+    """Crossing a gap with extra time 3 s and variance 2 s^2 moves the predicted passage 3 s
+    later and adds 2 s^2 to its variance, in the pairwise cost and in the Kalman prediction."""
+    delays = GapDelays.per_gap(np.array([100.0, 200.0]), np.array([3.0]), np.array([2.0]))
+    p = MotionParams(sigma=2.0, length=500.0, stamp_noise=0.1, velocity_noise=0.2)
+    u1, u2, dx = 1 / 20, 1 / 25, 100.0
+    t2 = 10.0 + dx * (u1 + u2) / 2 + 3.0 + 0.3  # 0.3 s late against the delayed trapezoid
+    costs = []
+    for q in (p, replace(p, delay=delays)):
+        m = PairwiseModel(q)
+        m.grow(1)
+        m.start(np.array([0]), 100.0, np.array([10.0]), np.array([u1]))
+        costs.append(m.cost(m.predict(np.array([0]), 200.0), np.array([t2]), np.array([u2])))
+    vn1, vn2 = (0.2 * u1 * u1) ** 2, (0.2 * u2 * u2) ** 2
+    su2 = (2.0 * u1 * u2) ** 2
+    var_t = 2 * 0.1**2 + dx * dx * (vn1 + vn2) / 4 + su2 * dx**3 / (6 * 500.0)
+    var_u = vn1 + vn2 + 2 * su2 * (1 - math.exp(-dx / 500.0))
+    want_d2 = 0.3**2 / (var_t + 2.0) + (u2 - u1) ** 2 / var_u
+    assert costs[1][1][0] == pytest.approx(want_d2, rel=1e-9)
+    assert costs[1][0][0] == pytest.approx(
+        0.5 * (want_d2 + math.log((var_t + 2.0) * var_u)) + math.log(2 * math.pi), rel=1e-9
+    )
+    # without the delay the same detection is 3.3 s late: far less likely
+    assert costs[0][0][0] > costs[1][0][0] + 10
+    preds = []
+    for q in (p, replace(p, delay=delays)):
+        k = KalmanModel(q)
+        k.grow(1)
+        k.start(np.array([0]), 100.0, np.array([10.0]), np.array([u1]))
+        preds.append(k.predict(np.array([0]), 200.0))
+    assert preds[1].mean[0, 0] == pytest.approx(preds[0].mean[0, 0] + 3.0, rel=1e-12)
+    assert preds[1].cov[0, 0, 0] == pytest.approx(preds[0].cov[0, 0, 0] + 2.0, rel=1e-12)
+    np.testing.assert_allclose(preds[1].cov[0, 1:, :], preds[0].cov[0, 1:, :])
+

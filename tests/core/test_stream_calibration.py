@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 import mlkm_core.streaming.solve as solve_module
-from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.associators.motion import GapDelays, MotionParams, PairwiseModel
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.streaming import StreamConfig, StreamTracker
@@ -33,7 +33,8 @@ def pairwise_weight(p, layout, a, t1, v1, b, t2, v2, birth):
 def test_link_cost_equals_the_pairwise_model():
     rng = np.random.default_rng(0)
     layout = Layout(2000.0, np.sort(rng.uniform(0, 2000, 12)))
-    delay = (layout.positions.copy(), np.concatenate([[0.0], np.cumsum(rng.uniform(0, 3, 11))]))
+    # gaps with an extra time and a spread of their own
+    delay = GapDelays.per_gap(layout.positions, rng.uniform(0, 3, 11), rng.uniform(0, 4, 11))
     for p in (
         MotionParams(),
         replace(MotionParams(), jump_rate=0.002, stamp_noise=0.3),
@@ -59,7 +60,12 @@ def test_link_cost_equals_the_pairwise_model():
 def test_link_due_equals_the_overdue_gate_of_the_pairwise_model():
     rng = np.random.default_rng(1)
     layout = Layout(2000.0, np.sort(rng.uniform(0, 2000, 12)))
-    for p in (MotionParams(), replace(MotionParams(), jump_rate=0.002, sigma=3.0)):
+    delay = GapDelays.per_gap(layout.positions, rng.uniform(0, 3, 11), rng.uniform(0, 4, 11))
+    for p in (
+        MotionParams(),
+        replace(MotionParams(), jump_rate=0.002, sigma=3.0),
+        replace(MotionParams(), delay=delay),
+    ):
         cost = LinkCost(p, layout)
         for _ in range(200):
             a = int(rng.integers(0, 10))

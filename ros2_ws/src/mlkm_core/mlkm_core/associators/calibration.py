@@ -7,7 +7,8 @@ sigma_v^2 (nugget), sigma^2 (sill) and L (range, by a grid search with non-negat
 squares); the trapezoid residuals of consecutive links give sigma_t; skipped sensors give
 p_miss, singleton tracks the false-alarm density. ``fit_motion`` then maximises the Kalman
 marginal likelihood of those tracks over (sigma, L, sigma_t, sigma_v), adds speed jumps and a
-drifting cruise speed where the tracks show them. ``estimate_params`` does all three.
+drifting cruise speed where the tracks show them. ``estimate_params`` does all three, with the
+extra travel time of the gaps the speeds do not explain (``delays``) before and after.
 """
 
 from __future__ import annotations
@@ -24,10 +25,11 @@ from mlkm_core.associators.attributes import (
     estimate_attributes,
     has_attributes,
 )
+from mlkm_core.associators.delays import estimate_delay, estimate_gap_spread, gap_links
 from mlkm_core.associators.laneorder import estimate_lane_order
 from mlkm_core.associators.likelihood import sequence_nll, track_sequences
 from mlkm_core.associators.linking import link, relabel
-from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, MotionParams
+from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, GapDelays, MotionParams
 from mlkm_core.types import Detections, Layout
 
 
@@ -275,68 +277,6 @@ def _fit_jumps(
 
 #: link passes that refine the in-lane order from their own tracks
 ORDER_ROUNDS = 3
-#: a gap whose first-pass links join fewer than this fraction of its detections is searched
-#: for an extra travel time
-LINKED_FRACTION = 0.6
-#: bin [s] of the histogram of travel-time residuals in which the extra time is the mode
-DELAY_BIN = 1.0
-
-
-def gap_links(layout: Layout, d: Detections, labels: np.ndarray) -> np.ndarray:
-    """Links of ``labels`` across each gap between consecutive sensors."""
-    valid = np.flatnonzero(labels >= 0)
-    order = valid[np.lexsort((d.sensor_index[valid], labels[valid]))]
-    same = labels[order[1:]] == labels[order[:-1]]
-    a = order[:-1][same]
-    one = d.sensor_index[order[1:][same]] == d.sensor_index[a] + 1
-    return np.bincount(d.sensor_index[a[one]], minlength=layout.n_sensors)[:-1]
-
-
-def estimate_delay(
-    layout: Layout, d: Detections, labels: np.ndarray
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """Extra travel time of the gaps the first pass could not link (``MotionParams.delay``).
-
-    Where the speeds at both ends of a gap do not show a slowdown between them (road works, a
-    queue), the predicted travel times are short by about the same amount for every vehicle
-    and the gate breaks nearly every track there. For such a gap, the residuals of the
-    predicted travel time over all pairs of detections at its two ends pile up at the true
-    extra time (the right pairs) over a flat background (the wrong ones): their mode, refined
-    by the median of the residuals within two bins of it.
-    """
-    n_s = layout.n_sensors
-    if n_s < 2 or len(d) == 0:
-        return None
-    pos = layout.positions
-    links = gap_links(layout, d, labels)
-    count = np.bincount(d.sensor_index, minlength=n_s)
-    extra = np.zeros(n_s - 1)
-    u = 1.0 / d.velocity
-    for g in range(n_s - 1):
-        n = min(count[g], count[g + 1])
-        if n < 10 or links[g] >= LINKED_FRACTION * n:
-            continue
-        ia = np.flatnonzero(d.sensor_index == g)
-        ib = np.flatnonzero(d.sensor_index == g + 1)
-        dx = pos[g + 1] - pos[g]
-        r = (d.stamp[ib][None, :] - d.stamp[ia][:, None]) - dx * (
-            u[ia][:, None] + u[ib][None, :]
-        ) / 2
-        base = dx * np.median(u[ia])
-        r = r[(r > -0.5 * base) & (r < min(3 * base, 600.0))]
-        if r.size < 10:
-            continue
-        edges = np.arange(r.min(), r.max() + DELAY_BIN, DELAY_BIN)
-        if edges.size < 3:
-            continue
-        hist, _ = np.histogram(r, edges)
-        smooth = np.convolve(hist, np.ones(3), mode='same')
-        peak = edges[int(np.argmax(smooth))] + DELAY_BIN / 2
-        near = r[np.abs(r - peak) <= 2 * DELAY_BIN]
-        extra[g] = float(np.median(near))
-    if not np.any(extra):
-        return None
-    return pos.copy(), np.concatenate([[0.0], np.cumsum(extra)])
 
 
 def estimate_params(layout: Layout, d: Detections) -> MotionParams:
@@ -358,11 +298,12 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
         before = gap_links(layout, d, relabel(raw))
         trial = link(layout, d, replace(base, delay=delay), 'pairwise')
         gain = gap_links(layout, d, relabel(trial)) > 1.2 * before + 2
-        extra = np.where(gain, np.diff(delay[1]), 0.0)
+        extra = np.where(gain, delay.gap_time, 0.0)
         if np.all(gain[extra != 0]) and gain.any():
             base, raw = replace(base, delay=delay), trial
         elif gain.any():
-            base = replace(base, delay=(delay[0], np.concatenate([[0.0], np.cumsum(extra)])))
+            delay = GapDelays.per_gap(layout.positions, extra, np.zeros_like(extra))
+            base = replace(base, delay=delay)
             raw = link(layout, d, base, 'pairwise')
     p = calibrate(layout, d, raw, base)
     if with_attributes:
@@ -380,4 +321,5 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
                 raw = link(layout, d, p, 'pairwise')
                 order = estimate_lane_order(layout, d, relabel(raw))
             p = replace(p, attributes=Attributes(layout, d, ap, order))
-    return fit_motion(layout, d, relabel(raw), p)
+    # the gaps whose travel times scatter beyond the calibrated model (a stop-and-go queue)
+    return estimate_gap_spread(layout, d, relabel(raw), fit_motion(layout, d, relabel(raw), p))

@@ -44,6 +44,7 @@ def link_residuals(
         2 * max(nominal.stamp_noise, FLOOR_T) ** 2
         + dx * dx * vn / 4
         + su2 * dx**3 / (6 * nominal.length)
+        + nominal.extra_var(xa, xb)
     )
     var_u = vn + 2 * su2 * (1 - np.exp(-dx / nominal.length))
     length = np.full(a.size, np.nan) if d.length is None else d.length[b] - d.length[a]

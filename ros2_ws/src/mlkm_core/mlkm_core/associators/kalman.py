@@ -90,8 +90,7 @@ class KalmanModel(MotionModel):
         mean = np.column_stack(
             [m[:, 0] + f01 * m[:, 1] + f02 * m[:, 2], f11 * m[:, 1] + f12 * m[:, 2], m[:, 2]]
         )
-        if self.p.delay is not None:
-            mean[:, 0] += self.p.extra_time(self.x[tracks], x)
+        delay = self.p.delay
         # F P F^T with F = [[1, f01, f02], [0, f11, f12], [0, 0, 1]], done by rows
         r0 = P[:, 0, :] + f01[:, None] * P[:, 1, :] + f02[:, None] * P[:, 2, :]
         r1 = f11[:, None] * P[:, 1, :] + f12[:, None] * P[:, 2, :]
@@ -102,6 +101,9 @@ class KalmanModel(MotionModel):
             cov[:, i, 1] = f11 * r[:, 1] + f12 * r[:, 2]
             cov[:, i, 2] = r[:, 2]
         cov[:, 0, 0] += su2 * np.maximum(i_var, 0)
+        if delay is not None:
+            mean[:, 0] += delay.extra_time(self.x[tracks], x)
+            cov[:, 0, 0] += delay.extra_var(self.x[tracks], x)
         q01 = su2 * L * (1 - a) ** 2
         cov[:, 0, 1] += q01
         cov[:, 1, 0] += q01

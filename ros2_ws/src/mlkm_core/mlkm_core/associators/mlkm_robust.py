@@ -67,8 +67,7 @@ def _pair_weights(
         nll, d2 = m.cost(m.predict(r, x2), t2[c], u2[c])
     else:  # backward: mirror the road (time and position change sign), extra times too
         if p.delay is not None:
-            pos, cum = p.delay
-            m = PairwiseModel(replace(p, delay=(-pos[::-1], cum[-1] - cum[::-1])))
+            m = PairwiseModel(replace(p, delay=p.delay.mirrored()))
             m.grow(n1)
         m.start(np.arange(n1), -x1, -t1, u1)
         nll, d2 = m.cost(m.predict(r, -x2), -t2[c], u2[c])

@@ -16,7 +16,9 @@ Two models, chosen by name (:func:`make_model`):
   two residuals, each scaled by its variance: the travel time predicted from the speeds at
   *both* ends (trapezoid in slowness), e_t = t2 - t1 - dx (u1 + u2) / 2,
   var = 2 sigma_t^2 + dx^2 (var u1 + var u2) / 4 + sigma_u^2 dx^3 / (6 L) (a Brownian bridge
-  of the fluctuation between two known ends), and the slowness change e_u = u2 - u1,
+  of the fluctuation between two known ends), both corrected by the extra time of the gaps
+  crossed where there is one (``GapDelays``: its mean and variance), and the slowness change
+  e_u = u2 - u1,
   var = 2 var_u,noise + 2 sigma_u^2 (1 - exp(-dx / L)) (the stationary OU increment).
 * ``kalman`` (``kalman.KalmanModel``, used by ``multiframe``): a track is a Kalman filter over
   position with the state (tau, u, m): passage time, slowness and the target's own cruise
@@ -45,6 +47,58 @@ FLOOR_V = 1e-3  # [m/s] floor of sigma_v
 
 
 @dataclass(frozen=True)
+class GapDelays:
+    """Extra travel time of the gaps between consecutive sensors, beyond what the speeds at
+    their ends predict: per gap a mean [s] and a variance [s^2] (a queue between two stations
+    holds every vehicle up by about the same time, give or take the stop-and-go waves), kept as
+    sums from the first sensor so that a link over several gaps adds up the gaps it crosses.
+    """
+
+    positions: np.ndarray  # sensor positions along the road [m], increasing
+    time: np.ndarray  # extra time from the first sensor to each sensor [s]
+    var: np.ndarray  # variance of that extra time [s^2]
+
+    @classmethod
+    def per_gap(cls, positions: np.ndarray, mean: np.ndarray, var: np.ndarray) -> GapDelays:
+        """From the mean [s] and variance [s^2] of each of the n - 1 gaps."""
+        return cls(
+            np.asarray(positions, float).copy(),
+            np.concatenate([[0.0], np.cumsum(mean)]),
+            np.concatenate([[0.0], np.cumsum(var)]),
+        )
+
+    @property
+    def gap_time(self) -> np.ndarray:
+        """Mean extra time of each gap [s]."""
+        return np.diff(self.time)
+
+    @property
+    def gap_var(self) -> np.ndarray:
+        """Variance of each gap's extra time [s^2]."""
+        return np.diff(self.var)
+
+    def _between(self, cum: np.ndarray, x1, x2):
+        top = self.positions.size - 1
+        k1 = np.clip(np.searchsorted(self.positions, x1, side='right') - 1, 0, top)
+        k2 = np.clip(np.searchsorted(self.positions, x2, side='right') - 1, 0, top)
+        return cum[k2] - cum[k1]
+
+    def extra_time(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
+        """Mean extra time [s] from x1 to x2 (negative for x2 < x1)."""
+        return self._between(self.time, x1, x2)
+
+    def extra_var(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
+        """Variance [s^2] of the extra time between x1 and x2, in either direction."""
+        return np.abs(self._between(self.var, x1, x2))
+
+    def mirrored(self) -> GapDelays:
+        """The same delays on the road seen backwards (positions negated and reversed)."""
+        return GapDelays(
+            -self.positions[::-1], self.time[-1] - self.time[::-1], self.var[-1] - self.var[::-1]
+        )
+
+
+@dataclass(frozen=True)
 class MotionParams:
     """Parameters of the traffic and sensor model (estimated by ``calibration``)."""
 
@@ -70,10 +124,9 @@ class MotionParams:
     open_road: tuple[np.ndarray, np.ndarray] | None = field(
         default=None, compare=False, repr=False
     )
-    # extra travel time [s] of each gap between consecutive sensors that the speeds measured
-    # at its ends do not show (road works, a queue between two sensors): (sensor positions,
-    # cumulative extra time up to each sensor); None: none
-    delay: tuple[np.ndarray, np.ndarray] | None = field(default=None, compare=False, repr=False)
+    # extra travel time of the gaps between consecutive sensors that the speeds measured at
+    # their ends do not show (road works, a queue between two sensors); None: none
+    delay: GapDelays | None = field(default=None, compare=False, repr=False)
     # lane and length evidence of the detections being associated (None: not used)
     attributes: Attributes | None = field(default=None, compare=False, repr=False)
 
@@ -97,12 +150,11 @@ class MotionParams:
 
     def extra_time(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
         """Extra travel time [s] from position x1 to x2 (``delay``; 0 without it)."""
-        if self.delay is None:
-            return 0.0
-        pos, cum = self.delay
-        k1 = np.searchsorted(pos, x1, side='right') - 1
-        k2 = np.searchsorted(pos, x2, side='right') - 1
-        return cum[np.clip(k2, 0, pos.size - 1)] - cum[np.clip(k1, 0, pos.size - 1)]
+        return 0.0 if self.delay is None else self.delay.extra_time(x1, x2)
+
+    def extra_var(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
+        """Variance [s^2] of the extra travel time from x1 to x2 (0 without ``delay``)."""
+        return 0.0 if self.delay is None else self.delay.extra_var(x1, x2)
 
     @property
     def miss_cost(self) -> float:
@@ -247,9 +299,9 @@ class PairwiseModel(MotionModel):
         )
         if p.jump_rate > 0:
             var_t = var_t + (p.jump_sigma * u * u) ** 2 * dx * dx
-        return self.t[tracks] + dx * u + p.extra_time(self.x[tracks], pred.x), np.sqrt(
-            p.gate * var_t
-        )
+        x1 = self.x[tracks]
+        var_t = var_t + p.extra_var(x1, pred.x)
+        return self.t[tracks] + dx * u + p.extra_time(x1, pred.x), np.sqrt(p.gate * var_t)
 
     def cost(
         self, pred: Prediction, t: np.ndarray, u: np.ndarray
@@ -264,6 +316,7 @@ class PairwiseModel(MotionModel):
             2 * max(p.stamp_noise, FLOOR_T) ** 2
             + dx * dx * (vn1 + vn2) / 4
             + su2 * dx**3 / (6 * p.length)
+            + p.extra_var(self.x[tracks], pred.x)
         )
         e_u = u - u1
         var_u = vn1 + vn2 + 2 * su2 * (1 - np.exp(-dx / p.length))

@@ -48,16 +48,19 @@ class LinkCost:
         self.miss = p.miss_cost
         self.delay = None
         if p.delay is not None:
-            self.delay = ([float(x) for x in p.delay[0]], [float(c) for c in p.delay[1]])
+            self.delay = tuple(
+                [float(v) for v in a] for a in (p.delay.positions, p.delay.time, p.delay.var)
+            )
 
-    def _extra(self, x1: float, x2: float) -> float:
+    def _extra(self, x1: float, x2: float) -> tuple[float, float]:
+        """Mean [s] and variance [s^2] of the extra time from x1 to x2 (``GapDelays``)."""
         if self.delay is None:
-            return 0.0
-        pos, cum = self.delay
+            return 0.0, 0.0
+        pos, time, var = self.delay
         top = len(pos) - 1
         k1 = min(max(bisect.bisect_right(pos, x1) - 1, 0), top)
         k2 = min(max(bisect.bisect_right(pos, x2) - 1, 0), top)
-        return cum[k2] - cum[k1]
+        return time[k2] - time[k1], abs(var[k2] - var[k1])
 
     def weight(
         self,
@@ -77,8 +80,11 @@ class LinkCost:
         u1, u = 1.0 / tail[2], 1.0 / velocity
         su2 = (p.sigma * u1 * u) ** 2
         vn1, vn2 = (self.noise_v * u1 * u1) ** 2, (self.noise_v * u * u) ** 2
-        e_t = stamp - tail[1] - dx * (u1 + u) / 2 - self._extra(x1, x2)
-        var_t = self.noise_t2 + dx * dx * (vn1 + vn2) / 4 + su2 * dx**3 / (6 * p.length)
+        extra_t, extra_var = self._extra(x1, x2)
+        e_t = stamp - tail[1] - dx * (u1 + u) / 2 - extra_t
+        var_t = (
+            self.noise_t2 + dx * dx * (vn1 + vn2) / 4 + su2 * dx**3 / (6 * p.length) + extra_var
+        )
         e_u = u - u1
         var_u = vn1 + vn2 + 2 * su2 * (1 - math.exp(-dx / p.length))
         try:
@@ -113,7 +119,8 @@ class LinkCost:
         var_t = self.noise_t2 + dx * dx * var_du + su2 * dx**3 / (6 * p.length)
         if p.jump_rate > 0:
             var_t += (p.jump_sigma * u * u) ** 2 * dx * dx
-        due = tail[1] + dx * u + self._extra(x1, x2) + math.sqrt(p.gate * var_t)
+        extra_t, extra_var = self._extra(x1, x2)
+        due = tail[1] + dx * u + extra_t + math.sqrt(p.gate * (var_t + extra_var))
         return due if math.isfinite(due) else tail[1]
 
 
