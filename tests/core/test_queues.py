@@ -8,10 +8,11 @@ import pytest
 from test_lane_length import N_SENSORS, SPACING, background, detections
 
 from mlkm_core.associators import calibration, make_associator
+from mlkm_core.associators.attributes import Attributes, estimate_attributes
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.delays import estimate_gap_spread
-from mlkm_core.associators.laneorder import LaneOrder
-from mlkm_core.associators.motion import MotionParams
+from mlkm_core.associators.laneorder import LaneOrder, restore_order
+from mlkm_core.associators.motion import GapDelays, MotionParams
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Layout
@@ -121,3 +122,63 @@ def test_no_gap_gets_a_spread_of_its_own_on_the_simulators_traffic(clutter):
         ds = simulate(SimConfig(n_targets=50, n_sensors=20, **(noise if clutter else {})), seed)
         delay = estimate_params(ds.layout, ds.detections).delay
         assert delay is None or not delay.gap_var.any()
+
+
+def queue_params(layout: Layout, d) -> MotionParams:
+    """The model of ``queue``'s traffic, lane and length fitted on its true tracks, the order
+    within lanes learnt from them."""
+    delay = np.zeros(N_SENSORS - 1)
+    delay[5] = 20.0
+    spread = np.zeros(N_SENSORS - 1)
+    spread[5] = 2.5**2
+    attributes = Attributes(
+        layout, d, estimate_attributes(layout, d, d.target), LaneOrder(layout, d, d.target)
+    )
+    return MotionParams(
+        sigma=0.3,
+        length=2000.0,
+        stamp_noise=0.01,
+        velocity_noise=0.1,
+        delay=GapDelays.per_gap(layout.positions, delay, spread),
+        attributes=attributes,
+    )
+
+
+def test_neighbours_crossed_in_a_queue_get_their_order_back():
+    layout, cols = queue(10)
+    d = detections(cols, lane=True, length=True)
+    p = queue_params(layout, d)
+    assert {(5, 0), (5, 1)} <= set(p.attributes.order.table)
+    # cars 10 and 11 (lane 0, one behind the other) with their continuations after the queue
+    # gap exchanged: the links cross
+    after = d.sensor_index >= 6
+    crossed = d.target.copy()
+    crossed[after & (d.target == 10)] = 11
+    crossed[after & (d.target == 11)] = 10
+    np.testing.assert_array_equal(restore_order(layout, d, crossed, p), d.target)
+    assert np.all(crossed[after & (d.target == 10)] == 11)  # the input is left as it is
+
+
+def test_a_crossing_that_the_lengths_confirm_is_kept():
+    layout, cols = queue(10)
+    # car 11 is a 12 m truck that passes station 6 and on ahead of car 10
+    sensor, target = np.array(cols['sensor']), np.array(cols['target'])
+    stamp, length = np.array(cols['stamp']), np.array(cols['length'])
+    length[target == 11] = 12.0
+    for s in range(6, N_SENSORS):
+        i, j = (
+            np.flatnonzero((sensor == s) & (target == 10)),
+            np.flatnonzero((sensor == s) & (target == 11)),
+        )
+        stamp[i], stamp[j] = stamp[j], stamp[i]
+    cols['stamp'], cols['length'] = stamp.tolist(), length.tolist()
+    d = detections(cols, lane=True, length=True)
+    p = queue_params(layout, d)
+    assert (5, 0) in p.attributes.order.table
+    np.testing.assert_array_equal(restore_order(layout, d, d.target, p), d.target)
+    # the same crossing between two cars of the same length is undone
+    length[target == 11] = 4.5
+    cols['length'] = length.tolist()
+    d = detections(cols, lane=True, length=True)
+    swapped = restore_order(layout, d, d.target, queue_params(layout, d))
+    assert np.all(swapped[(sensor >= 6) & (target == 10)] == 11)

@@ -14,9 +14,11 @@ time-gated candidate graph) with dummy rows and columns:
 * a detection left unmatched starts a new track (cost -log of the false-alarm density);
 * a track that ends with a single detection is a false alarm: UNASSIGNED (-1);
 * where the data show them, the cost also carries: abrupt speed changes (a two-component
-  mixture, ``motion``), an extra travel time per gap between sensors (road works, a queue),
-  and, for loop detectors, the lane and vehicle length (``attributes``) and the order of
-  passage within a lane in queues (``laneorder``);
+  mixture, ``motion``), an extra travel time per gap between sensors, with its spread in
+  stop-and-go traffic (road works, a queue: ``delays``), and, for loop detectors, the lane and
+  vehicle length (``attributes``) and the order of passage within a lane in queues
+  (``laneorder``; two neighbours of a lane whose links the pass crossed in a queue are given
+  back their order, ``laneorder.restore_order``);
 * a lane change on top of a station, reported by both lanes' loops, keeps one track
   (``linking.merge_double_reports``).
 
@@ -31,6 +33,7 @@ import numpy as np
 
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.linking import link, merge_double_reports, relabel
 from mlkm_core.associators.motion import MotionParams
 from mlkm_core.types import Detections, Layout
@@ -53,6 +56,6 @@ class AssignmentAssociator(Associator):
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d):
             params = motion if motion is not None else estimate_params(layout, d)
-            raw = link(layout, d, params, 'pairwise')
+            raw = restore_order(layout, d, link(layout, d, params, 'pairwise'), params)
             out[order] = relabel(merge_double_reports(d, raw, params))
         return out

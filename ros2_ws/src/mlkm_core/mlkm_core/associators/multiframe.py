@@ -52,6 +52,7 @@ from mlkm_core.associators.base import (
     register,
 )
 from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.likelihood import sequence_nll, total_nll, track_sequences
 from mlkm_core.associators.linking import link, merge_double_reports, relabel
 from mlkm_core.associators.motion import MotionParams, PairwiseModel
@@ -60,8 +61,9 @@ from mlkm_core.types import Detections, Layout
 
 #: NLL per link [nats] by which the Kalman model may trail the pairwise model on the pairwise
 #: model's own tracks (which favour it) and still be used: on SUMO free-flow traffic it trails
-#: by at most 0.15 and its search still gains; in stop-and-go traffic it trails by 0.35 to 1.1
-FIT_MARGIN = 0.25
+#: by at most 0.15 and its search still gains; in stop-and-go traffic it mostly trails by 0.22
+#: to 1.4 (where it trails by less, its search gains there too)
+FIT_MARGIN = 0.2
 #: above this many detections the search starts from the Kalman pass only (cost; the second
 #: start matters where few detections make the self-calibration noisy)
 DUAL_START_MAX = 5000
@@ -120,7 +122,7 @@ class MultiFrameAssociator(Associator):
         params = replace(params, open_road=openings)
         budget = self.config.search_budget
         with np.errstate(all='ignore'):
-            pairwise = link(layout, d, params, 'pairwise')
+            pairwise = restore_order(layout, d, link(layout, d, params, 'pairwise'), params)
             fits = kalman_fits(layout, d, relabel(pairwise), params)
         if not fits:
             warnings.warn(
