@@ -197,4 +197,3 @@ def test_a_gap_delay_shifts_and_widens_both_models_predictions():
     assert preds[1].mean[0, 0] == pytest.approx(preds[0].mean[0, 0] + 3.0, rel=1e-12)
     assert preds[1].cov[0, 0, 0] == pytest.approx(preds[0].cov[0, 0, 0] + 2.0, rel=1e-12)
     np.testing.assert_allclose(preds[1].cov[0, 1:, :], preds[0].cov[0, 1:, :])
-
