@@ -11,6 +11,8 @@ from mlkm_core.associators import AssociatorConfig, available_methods, calibrati
 from mlkm_core.associators.attributes import AttributeParams, estimate_attributes
 from mlkm_core.associators.base import DegradedResultWarning
 from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.linking import merge_double_reports
+from mlkm_core.associators.motion import MotionParams
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout
@@ -143,6 +145,45 @@ def test_double_report_of_a_lane_change_on_a_station_keeps_the_track(method):
     labels = make_associator(method).associate(layout, d, 40)
     assert len(set(labels[d.target == 9])) == 1
     assert accuracy(labels, d.target).accuracy == 1.0
+
+
+def twin_reports(speed: float, late: float, speed_change: float) -> Detections:
+    """One car (4.5 m) at constant ``speed`` past sensors 0, 1, 2, changing from lane 0 to
+    lane 1 on top of sensor 1, where the new lane's loop reports it ``late`` s after the old
+    one, ``speed_change`` m/s faster (detection 3, a false alarm)."""
+    t = np.array([0.0, 100.0, 200.0]) / speed
+    return Detections(
+        np.array([0, 1, 2, 1]),
+        np.array([*t, t[1] + late]),
+        np.array([speed, speed, speed, speed + speed_change]),
+        np.array([0, 0, 0, -1]),
+        np.array([0, 0, 1, 1]),
+        np.full(4, 4.5),
+    )
+
+
+def test_the_report_left_alone_joins_its_twins_track():
+    p = MotionParams(stamp_noise=0.05, velocity_noise=0.2)
+    d = twin_reports(30.0, 0.05, 0.1)
+    # the track went on from the old lane's report; the new lane's report is alone
+    np.testing.assert_array_equal(merge_double_reports(d, np.array([7, 7, 7, 8]), p), [7] * 4)
+    # the track ended on the old lane's report and the new lane's carried on
+    np.testing.assert_array_equal(merge_double_reports(d, np.array([7, 7, 8, 8]), p), [7] * 4)
+
+
+def test_a_slow_vehicles_twin_reports_may_be_far_apart():
+    p = MotionParams(stamp_noise=0.05, velocity_noise=0.2)
+    labels = np.array([7, 7, 7, 8])
+    # at 5 m/s the 4.5 m car covers its length in 0.9 s and may brake or accelerate meanwhile
+    slow = merge_double_reports(twin_reports(5.0, 0.7, 1.2), labels, p)
+    np.testing.assert_array_equal(slow, [7] * 4)
+    # at 30 m/s, 0.7 s apart are two vehicles (a car covers its length in 0.15 s)
+    fast = merge_double_reports(twin_reports(30.0, 0.7, 0.1), labels, p)
+    np.testing.assert_array_equal(fast, labels)
+    # in adjacent lanes only
+    far = twin_reports(5.0, 0.1, 0.1)
+    far.lane[3] = 2
+    np.testing.assert_array_equal(merge_double_reports(far, labels, p), labels)
 
 
 @pytest.mark.parametrize(('noise', 'change'), [(0.3, 0.05), (0.6, 0.15)])

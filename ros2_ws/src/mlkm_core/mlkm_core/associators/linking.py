@@ -171,18 +171,25 @@ def link(
 
 
 def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams) -> np.ndarray:
-    """Join a track that ends at a sensor with one that starts there on a twin detection.
+    """Give both reports of a vehicle changing lane on top of a station one track.
 
     A vehicle changing lane on top of a loop station is reported by both lanes' loops: two
-    detections at one sensor, in adjacent lanes, with the same stamp, speed and length (up to
-    the noise). The forward pass links one of them to the vehicle's track and starts a new
-    track from the other, and the new lane's report usually carries on (its lane matches the
-    next detections), so the vehicle's track ends there and its rest gets a new label. Here a
-    track of two detections or more that ends at sensor s on detection a is given the label of
-    the track that starts at s on a twin b of a and continues (|dt|, |dv|, |d length| within 3
-    standard deviations of a difference, lanes known and adjacent). Both reports then share
-    the label (one is a false alarm: its label does not count); the result may have two
-    detections of a track at one sensor, so this runs after the association proper.
+    detections at one sensor, in adjacent lanes, with the same length and nearly the same stamp
+    and speed. The forward pass links one of them to the vehicle's track, and either
+
+    * the other one starts a new track that carries on (its lane matches the next
+      detections), so the vehicle's track ends there and its rest gets a new label: a track of
+      two detections or more that ends at sensor s on detection a is given the label of the
+      track that starts at s on a twin b of a; or
+    * the track carries on from the report it took and the other one is left alone (a
+      single detection, which would be unassigned): it gets the label of its twin's track.
+
+    Twins: lanes known and adjacent, length within 3 standard deviations of a difference, and
+    stamp and speed within 3 standard deviations plus what the vehicle's own motion explains:
+    the loops see it up to the time it takes to cover its length apart (about 0.8 s at 5 m/s
+    in a queue) and its speed may change by ``TWIN_ACCELERATION`` over that time. Both reports
+    then share the label (one is a false alarm: its label does not count); the result may have
+    two detections of a track at one sensor, so this runs after the association proper.
     """
     if d.lane is None or len(d) == 0:
         return labels
@@ -196,32 +203,26 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
     tail = np.r_[lab[1:] != lab[:-1], True]
     ends = order[tail & ~head]  # last detection of a track with two or more
     starts = order[head & ~tail]  # first detection of a track with two or more
-    if ends.size == 0 or starts.size == 0:
-        return out
-    k = 3 * math.sqrt(2)
-    tol_t = k * max(params.stamp_noise, 0.05) + 0.2
-    tol_v = k * max(params.velocity_noise, 0.05)
-    att = params.attributes
-    tol_l = k * max(att.params.length_noise if att is not None else 0.3, 0.05)
-    key_s = d.sensor_index[starts]
+    alone = order[head & tail]  # a track of one detection
+    twins = _twin_test(d, params)
     merged: dict[int, int] = {}
+    key_s = d.sensor_index[starts]
     for a in ends.tolist():
         cand = starts[key_s == d.sensor_index[a]]
-        if cand.size == 0:
-            continue
-        ok = (np.abs(d.stamp[cand] - d.stamp[a]) <= tol_t) & (
-            np.abs(d.velocity[cand] - d.velocity[a]) <= tol_v
-        )
-        ok &= (d.lane[a] >= 0) & (d.lane[cand] >= 0) & (np.abs(d.lane[cand] - d.lane[a]) == 1)
-        if d.length is not None:
-            dl = np.abs(d.length[cand] - d.length[a])
-            ok &= ~(dl > tol_l)
-        cand = cand[ok]
+        cand = cand[twins(a, cand)]
         cand = cand[[int(out[c]) not in merged for c in cand]]
         if cand.size == 0:
             continue
         b = int(cand[np.argmin(np.abs(d.stamp[cand] - d.stamp[a]))])
         merged[int(out[b])] = int(out[a])
+    if alone.size:
+        tracked = order[~(head & tail)]
+        key_t = d.sensor_index[tracked]
+        for b in alone.tolist():
+            cand = tracked[key_t == d.sensor_index[b]]
+            cand = cand[twins(b, cand)]
+            if cand.size:
+                merged[int(out[b])] = int(out[cand[np.argmin(np.abs(d.stamp[cand] - d.stamp[b]))]])
     if merged:
 
         def root(x: int) -> int:
@@ -234,3 +235,32 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
             mapping[src] = root(src)
         out[valid] = mapping[out[valid]]
     return out
+
+
+#: largest speed change [m/s^2] between the two loops' reports of a vehicle changing lane
+TWIN_ACCELERATION = 3.0
+#: vehicle length [m] assumed where the sensor does not report it
+TYPICAL_LENGTH = 4.5
+
+
+def _twin_test(d: Detections, params: MotionParams):
+    """twins(a, cand): which detections of ``cand`` (at a's sensor) may be a's twin report."""
+    k = 3 * math.sqrt(2)
+    tol_t = k * max(params.stamp_noise, 0.05) + 0.2
+    tol_v = k * max(params.velocity_noise, 0.05)
+    att = params.attributes
+    tol_l = k * max(att.params.length_noise if att is not None else 0.3, 0.05)
+
+    def twins(a: int, cand: np.ndarray) -> np.ndarray:
+        dt = np.abs(d.stamp[cand] - d.stamp[a])
+        size = TYPICAL_LENGTH
+        if d.length is not None and np.isfinite(d.length[a]):
+            size = float(d.length[a])
+        ok = dt <= tol_t + size / d.velocity[a]
+        ok &= np.abs(d.velocity[cand] - d.velocity[a]) <= tol_v + TWIN_ACCELERATION * dt
+        ok &= (d.lane[a] >= 0) & (d.lane[cand] >= 0) & (np.abs(d.lane[cand] - d.lane[a]) == 1)
+        if d.length is not None:
+            ok &= ~(np.abs(d.length[cand] - d.length[a]) > tol_l)
+        return ok
+
+    return twins
