@@ -23,7 +23,10 @@ changes, and why:
   them, and a track of a single detection is labelled UNASSIGNED (a false alarm).
 
 Parameters: the variances of the pairwise cost are estimated from the data exactly as for
-``assignment`` (``calibration.estimate_params``).
+``assignment`` (``calibration.estimate_params``). The tracks then get the same corrections as
+``assignment``'s: in queues, two consecutive vehicles of a lane whose links cross get their
+order back (``laneorder.restore_order``), and a lane change's two reports share a track
+(``linking.merge_double_reports``).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ import numpy as np
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.kmeans import kmeans_labels
+from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.linking import match_sparse, merge_double_reports, relabel
 from mlkm_core.associators.mlkm import detect_errors
 from mlkm_core.associators.motion import MotionParams, PairwiseModel
@@ -272,5 +276,5 @@ class RobustMLKM(Associator):
                 end_det[ids[k]] = int(last[k])
                 end_seg[ids[k]] = e
             track[idx] = ids[local]
-        out[order] = relabel(merge_double_reports(d, track, p))
+        out[order] = relabel(merge_double_reports(d, restore_order(layout, d, track, p), p))
         return out
