@@ -321,5 +321,6 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
                 raw = link(layout, d, p, 'pairwise')
                 order = estimate_lane_order(layout, d, relabel(raw))
             p = replace(p, attributes=Attributes(layout, d, ap, order))
+    labels = relabel(raw)
     # the gaps whose travel times scatter beyond the calibrated model (a stop-and-go queue)
-    return estimate_gap_spread(layout, d, relabel(raw), fit_motion(layout, d, relabel(raw), p))
+    return estimate_gap_spread(layout, d, labels, fit_motion(layout, d, labels, p))

@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from mlkm_core.associators.attributes import link_pairs
-from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, GapDelays, MotionParams
+from mlkm_core.associators.motion import GapDelays, MotionParams, trapezoid_residual
 from mlkm_core.types import Detections, Layout
 
 #: a gap whose first-pass links join fewer than this fraction of its detections is searched
@@ -118,17 +118,14 @@ def estimate_gap_spread(
     if a.size == 0:
         return p
     pos = layout.positions
-    xa, xb = pos[d.sensor_index[a]], pos[d.sensor_index[b]]
-    ua, ub = 1.0 / d.velocity[a], 1.0 / d.velocity[b]
-    dx = xb - xa
-    e_t = d.stamp[b] - d.stamp[a] - dx * (ua + ub) / 2 - p.extra_time(xa, xb)
-    # the pairwise model's travel-time variance (motion.PairwiseModel.cost, without jumps)
-    sv = max(p.velocity_noise, FLOOR_V)
-    model = (
-        2 * max(p.stamp_noise, FLOOR_T) ** 2
-        + dx * dx * ((sv * ua * ua) ** 2 + (sv * ub * ub) ** 2) / 4
-        + (p.sigma * ua * ub) ** 2 * dx**3 / (6 * p.length)
-        + p.extra_var(xa, xb)
+    e_t, model = trapezoid_residual(
+        p,
+        pos[d.sensor_index[a]],
+        pos[d.sensor_index[b]],
+        d.stamp[a],
+        d.stamp[b],
+        1.0 / d.velocity[a],
+        1.0 / d.velocity[b],
     )
     gap = d.sensor_index[a]
     shift, var = np.zeros(n_s - 1), np.zeros(n_s - 1)

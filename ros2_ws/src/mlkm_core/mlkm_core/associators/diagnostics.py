@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from mlkm_core.associators.attributes import link_pairs
-from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, MotionParams
+from mlkm_core.associators.motion import FLOOR_V, MotionParams, trapezoid_residual
 from mlkm_core.types import Detections, Layout
 
 
@@ -33,19 +33,13 @@ def link_residuals(
         delay=params.delay,
     )
     dx = xb - xa
-    e_t = d.stamp[b] - d.stamp[a] - dx * (ua + ub) / 2 - nominal.extra_time(xa, xb)
+    e_t, var_t = trapezoid_residual(nominal, xa, xb, d.stamp[a], d.stamp[b], ua, ub)
     e_u = ub - ua
     # the nominal variances of the pairwise cost (motion.PairwiseModel.cost)
     su2 = (nominal.sigma * ua * ub) ** 2
     vn = (max(nominal.velocity_noise, FLOOR_V) * ua * ua) ** 2 + (
         max(nominal.velocity_noise, FLOOR_V) * ub * ub
     ) ** 2
-    var_t = (
-        2 * max(nominal.stamp_noise, FLOOR_T) ** 2
-        + dx * dx * vn / 4
-        + su2 * dx**3 / (6 * nominal.length)
-        + nominal.extra_var(xa, xb)
-    )
     var_u = vn + 2 * su2 * (1 - np.exp(-dx / nominal.length))
     length = np.full(a.size, np.nan) if d.length is None else d.length[b] - d.length[a]
     if d.lane is None:

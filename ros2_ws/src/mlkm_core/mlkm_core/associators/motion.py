@@ -200,6 +200,30 @@ def mix_nll(
     return -np.logaddexp(lp0 - nll0, lp1 - nll1), np.minimum(d20, d21)
 
 
+def trapezoid_residual(
+    p: MotionParams,
+    xa: np.ndarray,
+    xb: np.ndarray,
+    ta: np.ndarray,
+    tb: np.ndarray,
+    ua: np.ndarray,
+    ub: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Travel-time residual e_t [s] of links (xa, ta, ua) -> (xb, tb, ub) against the trapezoid
+    in slowness plus the gaps' extra time, and its variance [s^2] under the pairwise model's
+    nominal (pure OU) component, as ``PairwiseModel.cost`` has them (without jumps)."""
+    dx = xb - xa
+    e_t = tb - ta - dx * (ua + ub) / 2 - p.extra_time(xa, xb)
+    sv = max(p.velocity_noise, FLOOR_V)
+    var_t = (
+        2 * max(p.stamp_noise, FLOOR_T) ** 2
+        + dx * dx * ((sv * ua * ua) ** 2 + (sv * ub * ub) ** 2) / 4
+        + (p.sigma * ua * ub) ** 2 * dx**3 / (6 * p.length)
+        + p.extra_var(xa, xb)
+    )
+    return e_t, var_t
+
+
 class MotionModel(ABC):
     """State of many tracks under one motion model; tracks are ids 0..n-1 (see ``grow``)."""
 
