@@ -146,6 +146,52 @@ def test_drifting_cruise_speed_adds_a_random_walk_before_the_step():
     assert model.predict(track, 900.0).cov[0, 2, 2] > still.predict(track, 900.0).cov[0, 2, 2]
 
 
+def test_a_speed_level_change_after_the_first_sensor_is_a_mixture_hand_computed():
+    """With ``entry_jump`` q, a track's first prediction is the mixture (1 - q) N(plain) +
+    q N(plain + level change): the slowness and the cruise slowness both move by the change
+    J ~ N(0, (entry_sigma m^2)^2) at a uniform point of the gap, so the passage time gets
+    var_J d^2 / 3 and covariances var_J d / 2 with both. Later predictions have no such term."""
+    p = replace(P, entry_jump=0.3, entry_sigma=5.0)
+    u = 1.0 / V
+    model, plain = KalmanModel(p), KalmanModel(P)
+    track = np.array([0])
+    for m in (model, plain):
+        m.grow(1)
+        m.start(track, X[0], T[:1], u[:1])
+    pred, ref = model.predict(track, X[1]), plain.predict(track, X[1])
+    d, mc = X[1] - X[0], ref.mean[0, 2]
+    vj = (5.0 * mc * mc) ** 2
+    g = np.array([d / 2, 1.0, 1.0])  # how a change of the level moves (tau, u, m), on average
+    jumped = ref.cov[0] + vj * np.outer(g, g)
+    jumped[0, 0] += vj * d * d / 3 - vj * d * d / 4  # tau's own spread over the jump point
+    noise = reference_noise(P, u[1])
+    z = np.array([T[1], u[1]])
+
+    def density(cov: np.ndarray) -> float:
+        s = cov[:2, :2] + noise
+        y = z - ref.mean[0, :2]
+        norm = 2 * math.pi * math.sqrt(np.linalg.det(s))
+        return math.exp(-0.5 * y @ np.linalg.solve(s, y)) / norm
+
+    want = -math.log(0.7 * density(ref.cov[0]) + 0.3 * density(jumped))
+    np.testing.assert_allclose(pred.mean, ref.mean, rtol=1e-12)
+    nll, _ = model.cost(pred, T[1:2], u[1:2])
+    assert nll[0] == pytest.approx(want, rel=1e-9)
+    # the level change moved the cruise slowness with the slowness
+    model.update(pred, T[1:2], u[1:2])
+    plain.update(ref, T[1:2], u[1:2])
+    assert model.cov[0, 2, 2] > plain.cov[0, 2, 2]
+    # from the second sensor on, only the ordinary fluctuation (no jump component)
+    later = model.predict(track, X[2])
+    assert later.jump[0, 0] == 0.0
+    free = KalmanModel(P)
+    free.grow(1)
+    free.load(model.x, model.mean, model.cov, np.array([X[0]]))
+    nll2, _ = model.cost(later, T[2:3], u[2:3])
+    want2, _ = free.cost(free.predict(track, X[2]), T[2:3], u[2:3])
+    assert nll2[0] == pytest.approx(want2[0], rel=1e-12)
+
+
 def test_gap_delays_add_up_over_the_gaps_crossed_in_either_direction():
     """Sensors at 0, 100, 250 and 400 m; gaps with extra times (1, 0, 4) s and variances
     (0.25, 0, 2.25) s^2."""

@@ -135,6 +135,12 @@ _DRIFT_GRID = (0.5, 1.0, 2.0, 4.0, 8.0)
 #: whose targets keep their cruise speed, shows gains up to 0.022 from the model's
 #: approximations alone; car-following traffic (SUMO, 200 vehicles) mostly 0.04 to 0.13
 DRIFT_MIN_GAIN = 0.03
+#: candidate changes of a target's speed level between its first two sensors: (probability,
+#: std [m/s]) tried against none
+_ENTRY_GRID = tuple((q, s) for q in (0.05, 0.1, 0.2, 0.4) for s in (2.0, 4.0, 8.0))
+#: least likelihood gain per detection [nats] for the change of level after the first sensor
+#: (as for the drift)
+ENTRY_MIN_GAIN = 0.03
 _FIT_BOUNDS = {
     'sigma': (0.05, 50.0),
     'length': (5.0, 1e5),
@@ -196,7 +202,8 @@ def fit_motion(
     p = replace(p, sigma=float(sg[best]), length=float(ln[best]))
     for factors in _FIT_FACTORS:
         p = _coordinate_pass(layout, d, seqs, p, _FIT_FIELDS, factors, bounds)
-    return _fit_drift(layout, d, seqs, _fit_jumps(layout, d, seqs, p, bounds))
+    p = _fit_drift(layout, d, seqs, _fit_jumps(layout, d, seqs, p, bounds))
+    return _fit_entry(layout, d, seqs, p)
 
 
 def _score(
@@ -205,7 +212,7 @@ def _score(
     """Total NLL of ``seqs`` under each of k parameter sets (``values``: field -> (k,))."""
     n = seqs.shape[0]
     k = len(next(iter(values.values())))
-    names = _FIT_FIELDS + _JUMP_FIELDS + ('drift',)
+    names = _FIT_FIELDS + _JUMP_FIELDS + ('drift', 'entry_jump', 'entry_sigma')
     rows = {f: np.full(n * k, float(getattr(p, f))) for f in names}
     for f, v in values.items():
         rows[f] = np.repeat(np.asarray(v, float), n)
@@ -251,6 +258,26 @@ def _fit_drift(layout: Layout, d: Detections, seqs: np.ndarray, p: MotionParams)
     if best == 0 or nll[0] - nll[best] <= need:
         return p
     return replace(p, drift=float(drift[best]))
+
+
+def _fit_entry(layout: Layout, d: Detections, seqs: np.ndarray, p: MotionParams) -> MotionParams:
+    """Let a target's speed level change between its first two sensors when that explains the
+    tracks better by ``ENTRY_MIN_GAIN`` per detection (and at least a BIC penalty for two
+    parameters).
+
+    The product's own simulator starts every target at its cruise speed; in car-following
+    traffic a vehicle often enters at its desired speed and settles behind a slower leader
+    only downstream. The model would otherwise learn its cruise speed from that first speed
+    and rather leave the detection out of the track.
+    """
+    q = np.array([0.0] + [r for r, _ in _ENTRY_GRID])
+    sig = np.array([p.entry_sigma] + [s for _, s in _ENTRY_GRID])
+    nll = _score(layout, d, seqs, p, {'entry_jump': q, 'entry_sigma': sig})
+    best = int(np.argmin(nll))
+    need = max(2 * _penalty(seqs), ENTRY_MIN_GAIN * int((seqs >= 0).sum()))
+    if best == 0 or nll[0] - nll[best] <= need:
+        return p
+    return replace(p, entry_jump=float(q[best]), entry_sigma=float(sig[best]))
 
 
 def _fit_jumps(

@@ -23,8 +23,8 @@ class KalmanModel(MotionModel):
     """Track = Kalman filter on (tau, u, m) with the exact OU-in-distance transition.
 
     ``rows`` (optional) gives per-track parameter sets: arrays of any ``MotionParams`` field
-    the filter reads (sigma, length, the noises, the jumps, the drift), one entry per track
-    (used to score many parameter sets in one pass).
+    the filter reads (sigma, length, the noises, the jumps, the drift, the entry change), one
+    entry per track (used to score many parameter sets in one pass).
     """
 
     name = 'kalman'
@@ -33,12 +33,15 @@ class KalmanModel(MotionModel):
         super().__init__(params)
         self.rows = rows
         self.x = np.zeros(0)
+        self.origin = np.zeros(0)  # position of each track's first detection [m]
         self.mean = np.zeros((0, 3))
         self.cov = np.zeros((0, 3, 3))
 
-    def load(self, x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
-        """Replace the state of every track (copies), e.g. to continue saved filters."""
+    def load(self, x: np.ndarray, mean: np.ndarray, cov: np.ndarray, origin: np.ndarray) -> None:
+        """Replace the state of every track (copies), e.g. to continue saved filters;
+        ``origin`` is the position of each track's first detection."""
         self.x, self.mean, self.cov = x.copy(), mean.copy(), cov.copy()
+        self.origin = np.asarray(origin, float).copy()
 
     def _par(self, name: str, tracks: np.ndarray) -> float | np.ndarray:
         if self.rows is not None and name in self.rows:
@@ -47,6 +50,7 @@ class KalmanModel(MotionModel):
 
     def grow(self, n: int) -> None:
         self.x = np.concatenate([self.x, np.zeros(n)])
+        self.origin = np.concatenate([self.origin, np.zeros(n)])
         self.mean = np.concatenate([self.mean, np.zeros((n, 3))])
         self.cov = np.concatenate([self.cov, np.zeros((n, 3, 3))])
 
@@ -69,6 +73,7 @@ class KalmanModel(MotionModel):
         cov[:, 1, 2] = cov[:, 2, 1] = ru
         cov[:, 2, 2] = ru + dev
         self.x[tracks] = x
+        self.origin[tracks] = x
         self.mean[tracks] = np.column_stack([t, u, u])
         self.cov[tracks] = cov
 
@@ -116,13 +121,20 @@ class KalmanModel(MotionModel):
             v = np.column_stack([f02, f12, np.ones_like(f12)])
             cov += q[:, None, None] * v[:, :, None] * v[:, None, :]
         rate = self._par('jump_rate', tracks)
-        if np.all(np.asarray(rate) <= 0):
+        entry = self._par('entry_jump', tracks)
+        if np.all(np.asarray(rate) <= 0) and np.all(np.asarray(entry) <= 0):
             return Prediction(tracks, x, mean, cov)
         # a speed jump at a uniform point of the interval: var vj in slowness, vj d^2 / 3 in
         # passage time, covariance vj d / 2
         vj = (self._par('jump_sigma', tracks) * m[:, 2] ** 2) ** 2
         pj = -np.expm1(-rate * d) + 0 * d
-        jump = np.column_stack([pj, vj * d * d / 3, vj * d / 2, vj])
+        # after a track's first detection: a change of its whole speed level instead (the
+        # cruise speed too: the target settles behind its leader)
+        fresh = (self.x[tracks] == self.origin[tracks]) & (np.asarray(entry) > 0)
+        ve = (self._par('entry_sigma', tracks) * m[:, 2] ** 2) ** 2
+        pj = np.where(fresh, entry, pj)
+        vj = np.where(fresh, ve, vj)
+        jump = np.column_stack([pj, vj * d * d / 3, vj * d / 2, vj, fresh])
         return Prediction(tracks, x, mean, cov, jump)
 
     def gate_window(self, pred: Prediction) -> tuple[np.ndarray, np.ndarray]:
@@ -139,6 +151,13 @@ class KalmanModel(MotionModel):
         out[:, 0, 1] += jump[:, 2]
         out[:, 1, 0] += jump[:, 2]
         out[:, 1, 1] += jump[:, 3]
+        # a level change moves the cruise slowness with the slowness
+        level = jump[:, 4]
+        out[:, 0, 2] += level * jump[:, 2]
+        out[:, 2, 0] += level * jump[:, 2]
+        out[:, 1, 2] += level * jump[:, 3]
+        out[:, 2, 1] += level * jump[:, 3]
+        out[:, 2, 2] += level * jump[:, 3]
         return out
 
     @staticmethod

@@ -66,7 +66,7 @@ def _filter(
         first_sensor = np.zeros(n_seq, dtype=np.int64)
         count = np.zeros(n_seq, dtype=np.int64)
     else:
-        m.load(state.x, state.mean, state.cov)
+        m.load(state.x, state.mean, state.cov, layout.positions[state.first_sensor])
         if att is not None:
             att.load(state.attr)
         out, last = state.out.copy(), state.last.copy()

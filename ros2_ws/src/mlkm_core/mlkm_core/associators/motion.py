@@ -26,7 +26,9 @@ Two models, chosen by name (:func:`make_model`):
   detection of the track informs the prediction: the cruise slowness m is learnt over several
   sensors (the speed reverts to it) and noisy stamps/speeds are averaged. In car-following
   traffic the cruise speed itself drifts with the traffic around a vehicle (``drift``, a
-  random walk of m in distance), so that detections far upstream weigh less.
+  random walk of m in distance), so that detections far upstream weigh less, and a vehicle
+  may be seen first before it has settled behind its leader (``entry_jump``: its speed level
+  may change between its first two sensors).
 """
 
 from __future__ import annotations
@@ -118,6 +120,11 @@ class MotionParams:
     # the cruise speed itself drifts (a random walk in distance: car following adapts it to
     # the traffic around), std of its change over 1 km [m/s]; 0 = each target keeps its own
     drift: float = 0.0
+    # a target seen first before it has settled behind its leader: with probability
+    # entry_jump its speed level (cruise speed included) changes by N(0, entry_sigma^2)
+    # between its first two sensors; 0 = every target is seen first at its cruise speed
+    entry_jump: float = 0.0
+    entry_sigma: float = 4.0  # [m/s]
     # open road, per sensor: the first sensor a track seen first there could have passed (after
     # the last entry upstream) and the last one a track seen last there could pass (before the
     # first exit downstream); None: a closed road (0 and n_sensors - 1)
@@ -177,8 +184,8 @@ class Prediction:
     x: float | np.ndarray
     mean: np.ndarray | None = None
     cov: np.ndarray | None = None
-    # (n, 4) probability of a speed jump and the covariance it adds: (p, var tau,
-    # cov tau-u, var u); None without jumps
+    # (n, 5) probability of a speed jump and the covariance it adds: (p, var tau,
+    # cov tau-u, var u, 1 where the cruise slowness jumps with u, else 0); None without jumps
     jump: np.ndarray | None = None
 
     def take(self, rows: np.ndarray) -> Prediction:
