@@ -187,9 +187,13 @@ def test_a_speed_level_change_after_the_first_sensor_is_a_mixture_hand_computed(
     free = KalmanModel(P)
     free.grow(1)
     free.load(model.x, model.mean, model.cov, np.array([X[0]]))
-    nll2, _ = model.cost(later, T[2:3], u[2:3])
-    want2, _ = free.cost(free.predict(track, X[2]), T[2:3], u[2:3])
+    nll2, d2 = model.cost(later, T[2:3], u[2:3])
+    plain_pred = free.predict(track, X[2])
+    want2, want_d2 = free.cost(plain_pred, T[2:3], u[2:3])
     assert nll2[0] == pytest.approx(want2[0], rel=1e-12)
+    # and the gate is the plain filter's too (this model has no ordinary jumps)
+    assert d2[0] == pytest.approx(want_d2[0], rel=1e-12)
+    np.testing.assert_allclose(model.gate_window(later), free.gate_window(plain_pred))
 
 
 def test_gap_delays_add_up_over_the_gaps_crossed_in_either_direction():

@@ -133,7 +133,8 @@ class KalmanModel(MotionModel):
         fresh = (self.x[tracks] == self.origin[tracks]) & (np.asarray(entry) > 0)
         ve = (self._par('entry_sigma', tracks) * m[:, 2] ** 2) ** 2
         pj = np.where(fresh, entry, pj)
-        vj = np.where(fresh, ve, vj)
+        # no jump, no component: the gate stays the plain filter's
+        vj = np.where(fresh, ve, np.where(pj > 0, vj, 0.0))
         jump = np.column_stack([pj, vj * d * d / 3, vj * d / 2, vj, fresh])
         return Prediction(tracks, x, mean, cov, jump)
 
