@@ -32,6 +32,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from mlkm_core.associators.base import link_pairs
 from mlkm_core.associators.laneorder import LaneOrder
 from mlkm_core.types import Detections, Layout
 
@@ -215,14 +216,6 @@ class TrackAttributes:
         else:
             s.lsum[tk] = ln[known]
             s.lcnt[tk] = 1.0
-
-
-def link_pairs(d: Detections, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Consecutive detections (by sensor) of each track: (earlier, later) indices."""
-    valid = np.flatnonzero(labels >= 0)
-    order = valid[np.lexsort((d.sensor_index[valid], labels[valid]))]
-    same = labels[order[1:]] == labels[order[:-1]]
-    return order[:-1][same], order[1:][same]
 
 
 def has_attributes(d: Detections) -> bool:

@@ -61,6 +61,14 @@ def canonical_order(detections: Detections) -> np.ndarray:
     return np.lexsort((detections.velocity, detections.stamp, detections.sensor_index))
 
 
+def link_pairs(d: Detections, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Consecutive detections (by sensor) of each track: (earlier, later) indices."""
+    valid = np.flatnonzero(labels >= 0)
+    order = valid[np.lexsort((d.sensor_index[valid], labels[valid]))]
+    same = labels[order[1:]] == labels[order[:-1]]
+    return order[:-1][same], order[1:][same]
+
+
 class Session:
     """Incremental association over consecutive segments of one episode.
 

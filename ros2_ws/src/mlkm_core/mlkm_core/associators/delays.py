@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from mlkm_core.associators.attributes import link_pairs
+from mlkm_core.associators.base import link_pairs
 from mlkm_core.associators.motion import GapDelays, MotionParams, trapezoid_residual
 from mlkm_core.types import Detections, Layout
 
@@ -33,11 +33,8 @@ DELAY_BIN = 1.0
 
 def gap_links(layout: Layout, d: Detections, labels: np.ndarray) -> np.ndarray:
     """Links of ``labels`` across each gap between consecutive sensors."""
-    valid = np.flatnonzero(labels >= 0)
-    order = valid[np.lexsort((d.sensor_index[valid], labels[valid]))]
-    same = labels[order[1:]] == labels[order[:-1]]
-    a = order[:-1][same]
-    one = d.sensor_index[order[1:][same]] == d.sensor_index[a] + 1
+    a, b = link_pairs(d, labels)
+    one = d.sensor_index[b] == d.sensor_index[a] + 1
     return np.bincount(d.sensor_index[a[one]], minlength=layout.n_sensors)[:-1]
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mlkm_core.associators.attributes import link_pairs
+from mlkm_core.associators.base import link_pairs
 from mlkm_core.associators.motion import FLOOR_V, MotionParams, trapezoid_residual
 from mlkm_core.types import Detections, Layout
 

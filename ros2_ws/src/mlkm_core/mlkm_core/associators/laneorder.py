@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mlkm_core.associators.base import link_pairs
 from mlkm_core.associators.motion import MotionParams, make_model
 from mlkm_core.types import Detections, Layout
 
@@ -53,10 +54,7 @@ class LaneOrder:
         self.sensor, self.stamp = d.sensor_index, d.stamp
         self.lane = np.full(len(d), -1, np.int64) if d.lane is None else d.lane
         self.table: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
-        valid = np.flatnonzero(labels >= 0)
-        order = valid[np.lexsort((d.sensor_index[valid], labels[valid]))]
-        same = labels[order[1:]] == labels[order[:-1]]
-        a, b = order[:-1][same], order[1:][same]
+        a, b = link_pairs(d, labels)
         keep = (self.sensor[b] == self.sensor[a] + 1) & (self.lane[a] >= 0)
         keep &= self.lane[a] == self.lane[b]
         a, b = a[keep], b[keep]
@@ -160,10 +158,7 @@ def restore_order(
     u = 1.0 / d.velocity
     limit = -np.log(SWAP_PROB)
     for g in sorted({g for g, _ in att.order.table}):
-        valid = np.flatnonzero(out >= 0)
-        order = valid[np.lexsort((d.sensor_index[valid], out[valid]))]
-        same = out[order[1:]] == out[order[:-1]]
-        a, b = order[:-1][same], order[1:][same]
+        a, b = link_pairs(d, out)
         across = (d.sensor_index[a] == g) & (d.sensor_index[b] == g + 1) & (d.lane[a] >= 0)
         a, b = a[across], b[across]
         for lane in np.unique(d.lane[a]):

@@ -342,13 +342,7 @@ class PairwiseModel(MotionModel):
         u1 = self.u[tracks]
         su2 = (p.sigma * u1 * u) ** 2  # sigma_u^2 with m^2 ~ u1 u2
         vn1, vn2 = self._var_u_noise(u1), self._var_u_noise(u)
-        e_t = t - self.t[tracks] - dx * (u1 + u) / 2 - p.extra_time(self.x[tracks], pred.x)
-        var_t = (
-            2 * max(p.stamp_noise, FLOOR_T) ** 2
-            + dx * dx * (vn1 + vn2) / 4
-            + su2 * dx**3 / (6 * p.length)
-            + p.extra_var(self.x[tracks], pred.x)
-        )
+        e_t, var_t = trapezoid_residual(p, self.x[tracks], pred.x, self.t[tracks], t, u1, u)
         e_u = u - u1
         var_u = vn1 + vn2 + 2 * su2 * (1 - np.exp(-dx / p.length))
         d2 = e_t * e_t / var_t + e_u * e_u / var_u

@@ -44,11 +44,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from mlkm_core.associators.attributes import link_pairs
 from mlkm_core.associators.base import (
     Associator,
     DegradedResultWarning,
     canonical_order,
+    link_pairs,
     register,
 )
 from mlkm_core.associators.calibration import estimate_params
