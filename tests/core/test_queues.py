@@ -1,7 +1,8 @@
-"""Queues between stations: the extra travel time of a gap and its spread, and the order of
-passage within a lane (hand-made traffic where they decide)."""
+"""Queues between stations: the extra travel time of a gap, its spread and its lanes' own
+(a merge), and the order of passage within a lane (hand-made traffic where they decide)."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,12 +11,17 @@ from test_lane_length import N_SENSORS, SPACING, background, detections
 from mlkm_core.associators import calibration, make_associator
 from mlkm_core.associators.attributes import Attributes, estimate_attributes
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.delays import estimate_gap_spread
+from mlkm_core.associators.delays import (
+    estimate_gap_spread,
+    estimate_lane_delays,
+    relink_lane_delays,
+)
 from mlkm_core.associators.laneorder import LaneOrder, restore_order
+from mlkm_core.associators.linking import link, relabel
 from mlkm_core.associators.motion import GapDelays, MotionParams
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
-from mlkm_core.types import Layout
+from mlkm_core.types import Detections, Layout
 
 
 def test_extra_travel_time_of_a_gap_is_found_from_the_data():
@@ -182,3 +188,109 @@ def test_a_crossing_that_the_lengths_confirm_is_kept():
     d = detections(cols, lane=True, length=True)
     swapped = restore_order(layout, d, d.target, queue_params(layout, d))
     assert np.all(swapped[(sensor >= 6) & (target == 10)] == 11)
+
+
+def merge(seed: int, late: float = 2.5, spread: float = 0.6, spread_closing: float = 0.4):
+    """A lane drop between sensors 5 and 6: 60 cars of the same length, one every ~1.5 s,
+    every third in lane 1, which ends before sensor 6. A car of lane 1 is held up ``late`` s,
+    give or take N(0, spread_closing^2), where it merges; a car of lane 0 is held up
+    N(0, spread^2) by the waves the merging cars send through the queue. After the gap every
+    car is in lane 0."""
+    rng = np.random.default_rng(seed)
+    layout = Layout(SPACING * (N_SENSORS + 1), SPACING * np.arange(1, N_SENSORS + 1))
+    cols = {k: [] for k in ('sensor', 'stamp', 'speed', 'target', 'lane', 'length')}
+    for k in range(60):
+        lane = 1 if k % 3 == 2 else 0
+        t0 = 1.5 * k + rng.uniform(0, 0.3)
+        v = rng.uniform(24, 26)
+        held = rng.normal(late, spread_closing) if lane else rng.normal(0.0, spread)
+        for s, x in enumerate(layout.positions):
+            cols['sensor'].append(s)
+            cols['stamp'].append(t0 + x / v + (held if s >= 6 else 0.0))
+            cols['speed'].append(v + rng.normal(0, 0.1))
+            cols['target'].append(k)
+            cols['lane'].append(lane if s <= 5 else 0)
+            cols['length'].append(4.5)
+    return layout, detections(cols, lane=True, length=True)
+
+
+MERGE_MODEL = MotionParams(sigma=0.5, length=2000.0, stamp_noise=0.05, velocity_noise=0.2)
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_the_lane_that_ends_at_a_merge_gets_its_own_delay(seed):
+    layout, d = merge(seed)
+    pooled = estimate_gap_spread(layout, d, d.target, MERGE_MODEL)
+    assert pooled.delay.gap_var[5] > 0 and np.all(np.delete(pooled.delay.gap_var, 5) == 0)
+    lanes = estimate_lane_delays(layout, d, d.target, pooled).delay.lanes
+    assert [(g, lane) for g, lane, _, _ in lanes] == [(5, 0), (5, 1)]
+    # each lane's median delay and its spread beyond the model's own (N(0, 0.6^2) for lane 0,
+    # N(2.5, 0.4^2) for lane 1, from 40 and 20 cars)
+    (_, _, t0, v0), (_, _, t1, v1) = lanes
+    assert t0 == pytest.approx(0.0, abs=0.25)
+    assert t1 == pytest.approx(2.5, abs=0.3)
+    assert 0.0 < v0 < 0.6 and 0.0 < v1 < 0.4
+    # the gap's own estimate is left as it is, for links that leave no lane behind
+    np.testing.assert_array_equal(
+        estimate_lane_delays(layout, d, d.target, pooled).delay.gap_time, pooled.delay.gap_time
+    )
+
+
+def test_lanes_held_up_alike_share_the_gap_delay():
+    layout, d = merge(0, late=0.3, spread=0.6, spread_closing=0.6)
+    pooled = estimate_gap_spread(layout, d, d.target, MERGE_MODEL)
+    assert pooled.delay.gap_var[5] > 0
+    assert estimate_lane_delays(layout, d, d.target, pooled).delay.lanes == ()
+
+
+def test_relinking_with_the_lanes_delays_mends_the_merge():
+    raw_acc, relinked_acc = [], []
+    for seed in range(3):
+        layout, d = merge(seed)
+        pooled = estimate_gap_spread(layout, d, d.target, MERGE_MODEL)
+        own = estimate_lane_delays(layout, d, d.target, pooled)
+        raw = link(layout, d, pooled)
+        kept = raw.copy()
+        relinked = relink_lane_delays(layout, d, raw, own)
+        np.testing.assert_array_equal(raw, kept)  # the input is left as it is
+        # without lanes' own delays nothing is re-decided
+        np.testing.assert_array_equal(relink_lane_delays(layout, d, raw, pooled), raw)
+        # only links across the merge gap change: before it, the tracks are the same
+        before = d.sensor_index <= 5
+        assert (
+            accuracy(relabel(relinked)[before], d.target[before]).accuracy
+            == accuracy(relabel(raw)[before], d.target[before]).accuracy
+        )
+        raw_acc.append(accuracy(relabel(raw), d.target).accuracy)
+        relinked_acc.append(accuracy(relabel(relinked), d.target).accuracy)
+    # seeds 0-2: 0.88, 0.88, 0.83 -> 0.97, 0.98, 0.93
+    assert np.mean(raw_acc) < 0.9
+    assert np.mean(relinked_acc) > 0.95
+    assert min(b - a for a, b in zip(raw_acc, relinked_acc, strict=True)) > 0.05
+
+
+def test_a_merging_car_held_up_behind_the_one_it_passed_keeps_its_track():
+    # stations 200 m apart, the lane drop between the last two; both cars at 25 m/s.
+    # Car B (lane 1) passes station 1 a second before car A (lane 0) and merges behind it:
+    # A is 0.3 s late at station 2, B 2.5 s. Expected late time and variance in that gap: 0.8 s
+    # and 1.5 s^2 for the gap as a whole, 0 and 0.04 for lane 0, 2.5 and 0.04 for lane 1.
+    layout = Layout(500.0, np.array([50.0, 250.0, 450.0]))
+    d = Detections(
+        np.array([0, 0, 1, 1, 2, 2]),
+        np.array([92.0, 91.0, 100.0, 99.0, 108.3, 109.5]),
+        np.full(6, 25.0),
+        np.array([0, 1, 0, 1, 0, 1]),
+        np.array([0, 1, 0, 1, 0, 0]),
+    )
+    pooled = replace(
+        MERGE_MODEL, delay=GapDelays.per_gap(layout.positions, [0.0, 0.8], [0.0, 1.5])
+    )
+    lanes = ((1, 0, 0.0, 0.04), (1, 1, 2.5, 0.04))
+    own = replace(pooled, delay=replace(pooled.delay, lanes=lanes))
+    # residuals beyond the gap's 0.8 s: -0.5 and 1.7 s as they drove, 0.7 and 0.5 s with the
+    # continuations exchanged, so the gap's law alone exchanges them ...
+    raw = link(layout, d, pooled)
+    assert raw[4] == raw[1] and raw[5] == raw[0]
+    # ... and each lane's own law (0.3 s for A: 1.5 sigma; 0 s for B) gives them back
+    relinked = relink_lane_delays(layout, d, raw, own)
+    assert accuracy(relabel(relinked), d.target).accuracy == 1.0

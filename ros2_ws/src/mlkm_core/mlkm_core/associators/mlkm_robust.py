@@ -37,6 +37,7 @@ import numpy as np
 
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.delays import relink_lane_delays
 from mlkm_core.associators.kmeans import kmeans_labels
 from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.linking import match_sparse, merge_double_reports, relabel
@@ -276,5 +277,6 @@ class RobustMLKM(Associator):
                 end_det[ids[k]] = int(last[k])
                 end_seg[ids[k]] = e
             track[idx] = ids[local]
-        out[order] = relabel(merge_double_reports(d, restore_order(layout, d, track, p), p))
+        track = restore_order(layout, d, relink_lane_delays(layout, d, track, p), p)
+        out[order] = relabel(merge_double_reports(d, track, p))
         return out

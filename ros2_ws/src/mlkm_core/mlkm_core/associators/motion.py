@@ -59,6 +59,10 @@ class GapDelays:
     positions: np.ndarray  # sensor positions along the road [m], increasing
     time: np.ndarray  # extra time from the first sensor to each sensor [s]
     var: np.ndarray  # variance of that extra time [s^2]
+    # gaps where the extra time depends on the lane at the gap's first sensor (a lane that ends
+    # at a merge): (gap, lane, extra time [s], its variance [s^2]) of each such lane, used
+    # instead of the gap's own for the links out of that lane (``delays.relink_lane_delays``)
+    lanes: tuple[tuple[int, int, float, float], ...] = ()
 
     @classmethod
     def per_gap(cls, positions: np.ndarray, mean: np.ndarray, var: np.ndarray) -> GapDelays:
@@ -93,8 +97,15 @@ class GapDelays:
         """Variance [s^2] of the extra time between x1 and x2, in either direction."""
         return np.abs(self._between(self.var, x1, x2))
 
+    def with_gap(self, gap: int, mean: float, var: float) -> GapDelays:
+        """The same delays with gap ``gap``'s mean [s] and variance [s^2] replaced."""
+        t, v = self.gap_time.copy(), self.gap_var.copy()
+        t[gap], v[gap] = mean, var
+        return GapDelays.per_gap(self.positions, t, v)
+
     def mirrored(self) -> GapDelays:
-        """The same delays on the road seen backwards (positions negated and reversed)."""
+        """The same delays on the road seen backwards (positions negated and reversed), without
+        the lanes' own (a backward link does not know the lane it will leave from)."""
         return GapDelays(
             -self.positions[::-1], self.time[-1] - self.time[::-1], self.var[-1] - self.var[::-1]
         )

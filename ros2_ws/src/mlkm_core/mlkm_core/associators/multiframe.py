@@ -52,6 +52,7 @@ from mlkm_core.associators.base import (
     register,
 )
 from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.delays import relink_lane_delays
 from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.likelihood import sequence_nll, total_nll, track_sequences
 from mlkm_core.associators.linking import link, merge_double_reports, relabel
@@ -122,7 +123,9 @@ class MultiFrameAssociator(Associator):
         params = replace(params, open_road=openings)
         budget = self.config.search_budget
         with np.errstate(all='ignore'):
-            pairwise = restore_order(layout, d, link(layout, d, params, 'pairwise'), params)
+            pairwise = link(layout, d, params, 'pairwise')
+            pairwise = relink_lane_delays(layout, d, pairwise, params)
+            pairwise = restore_order(layout, d, pairwise, params)
             fits = kalman_fits(layout, d, relabel(pairwise), params)
         if not fits:
             warnings.warn(
