@@ -11,13 +11,15 @@ from test_lane_length import N_SENSORS, SPACING, background, detections
 from mlkm_core.associators import calibration, make_associator
 from mlkm_core.associators.attributes import Attributes, estimate_attributes
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.delays import (
-    estimate_gap_spread,
-    estimate_lane_delays,
-    relink_lane_delays,
-)
+from mlkm_core.associators.delays import estimate_gap_spread
 from mlkm_core.associators.laneorder import LaneOrder, restore_order
 from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.merges import (
+    estimate_lane_delays,
+    estimate_yields,
+    exchange_merge_order,
+    relink_lane_delays,
+)
 from mlkm_core.associators.motion import GapDelays, MotionParams
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate
@@ -190,26 +192,46 @@ def test_a_crossing_that_the_lengths_confirm_is_kept():
     assert np.all(swapped[(sensor >= 6) & (target == 10)] == 11)
 
 
-def merge(seed: int, late: float = 2.5, spread: float = 0.6, spread_closing: float = 0.4):
+def merge(
+    seed: int,
+    late: float = 2.5,
+    spread: float = 0.6,
+    spread_closing: float = 0.4,
+    yield_late: float = 0.0,
+):
     """A lane drop between sensors 5 and 6: 60 cars of the same length, one every ~1.5 s,
     every third in lane 1, which ends before sensor 6. A car of lane 1 is held up ``late`` s,
     give or take N(0, spread_closing^2), where it merges; a car of lane 0 is held up
-    N(0, spread^2) by the waves the merging cars send through the queue. After the gap every
-    car is in lane 0."""
+    N(0, spread^2) by the waves the merging cars send through the queue, and ``yield_late`` s
+    more if it reaches sensor 6 right behind a car of lane 1. After the gap every car is in
+    lane 0."""
     rng = np.random.default_rng(seed)
     layout = Layout(SPACING * (N_SENSORS + 1), SPACING * np.arange(1, N_SENSORS + 1))
+    lane = (np.arange(60) % 3 == 2).astype(int)
+    t0, v, held = np.zeros(60), np.zeros(60), np.zeros(60)
+    speed = np.zeros((60, N_SENSORS))
+    for k in range(60):
+        t0[k] = 1.5 * k + rng.uniform(0, 0.3)
+        v[k] = rng.uniform(24, 26)
+        held[k] = rng.normal(late, spread_closing) if lane[k] else rng.normal(0.0, spread)
+        speed[k] = v[k] + rng.normal(0, 0.1, N_SENSORS)
+    # the cars of lane 0 right behind a car of lane 1 at sensor 6, their extra delay included
+    base = held.copy()
+    for _ in range(20 if yield_late else 0):
+        order = np.argsort(t0 + layout.positions[6] / v + held)
+        behind = np.zeros(60, bool)
+        behind[order[1:]] = (lane[order[:-1]] == 1) & (lane[order[1:]] == 0)
+        if np.array_equal(base + yield_late * behind, held):
+            break
+        held = base + yield_late * behind
     cols = {k: [] for k in ('sensor', 'stamp', 'speed', 'target', 'lane', 'length')}
     for k in range(60):
-        lane = 1 if k % 3 == 2 else 0
-        t0 = 1.5 * k + rng.uniform(0, 0.3)
-        v = rng.uniform(24, 26)
-        held = rng.normal(late, spread_closing) if lane else rng.normal(0.0, spread)
         for s, x in enumerate(layout.positions):
             cols['sensor'].append(s)
-            cols['stamp'].append(t0 + x / v + (held if s >= 6 else 0.0))
-            cols['speed'].append(v + rng.normal(0, 0.1))
+            cols['stamp'].append(t0[k] + x / v[k] + (held[k] if s >= 6 else 0.0))
+            cols['speed'].append(speed[k, s])
             cols['target'].append(k)
-            cols['lane'].append(lane if s <= 5 else 0)
+            cols['lane'].append(int(lane[k]) if s <= 5 else 0)
             cols['length'].append(4.5)
     return layout, detections(cols, lane=True, length=True)
 
@@ -294,3 +316,48 @@ def test_a_merging_car_held_up_behind_the_one_it_passed_keeps_its_track():
     # ... and each lane's own law (0.3 s for A: 1.5 sigma; 0 s for B) gives them back
     relinked = relink_lane_delays(layout, d, raw, own)
     assert accuracy(relabel(relinked), d.target).accuracy == 1.0
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_the_car_that_lets_a_merging_car_in_gets_its_own_delay(seed):
+    layout, d = merge(seed, spread=0.3, yield_late=1.0)
+    p = estimate_gap_spread(layout, d, d.target, MERGE_MODEL)
+    p = estimate_lane_delays(layout, d, d.target, p)
+    ((g, time, var),) = estimate_yields(layout, d, d.target, p).delay.yields
+    # N(0, 0.3^2) for a car of lane 0, 1 s more right behind a car of lane 1 (14-18 cars)
+    assert g == 5
+    assert time == pytest.approx(1.0, abs=0.4)
+    assert 0.0 <= var < 0.5
+    # without the extra delay, the cars behind a merging car are held up like the others
+    layout, d = merge(seed, spread=0.3)
+    p = estimate_gap_spread(layout, d, d.target, MERGE_MODEL)
+    p = estimate_lane_delays(layout, d, d.target, p)
+    assert p.delay.lanes and estimate_yields(layout, d, d.target, p).delay.yields == ()
+
+
+def test_a_car_held_up_by_the_car_it_let_in_passes_after_it():
+    # stations 200 m apart, the lane drop between the last two; both cars at 25 m/s. Car B
+    # (lane 1) passes station 1 half a second before car A (lane 0); after the merge B passes
+    # station 2 at 109.0 s, A at 109.4 s. Lane 0 is expected on time (0 s, variance 0.04 s^2),
+    # lane 1 2.5 s late (variance 0.25), and a car of lane 0 right behind a merging one 1 s late
+    # (variance 0.09).
+    layout = Layout(500.0, np.array([50.0, 250.0, 450.0]))
+    d = Detections(
+        np.array([0, 0, 1, 1, 2, 2]),
+        np.array([92.0, 91.5, 100.0, 99.5, 109.4, 109.0]),
+        np.full(6, 25.0),
+        np.array([0, 1, 0, 1, 0, 1]),
+        np.array([0, 1, 0, 1, 0, 0]),
+    )
+    lanes = ((1, 0, 0.0, 0.04), (1, 1, 2.5, 0.25))
+    delay = GapDelays.per_gap(layout.positions, [0.0, 0.8], [0.0, 1.5])
+    p = replace(MERGE_MODEL, delay=replace(delay, lanes=lanes, yields=((1, 1.0, 0.09),)))
+    # A first (1.0 s late: 5 sigma of lane 0), B 1.9 s late (1.2 sigma of lane 1) is what the
+    # lanes alone prefer over A 1.4 s late (7 sigma) behind B 1.5 s late (2 sigma) ...
+    swapped = np.array([0, 1, 0, 1, 1, 0])
+    no_yield = replace(p, delay=replace(p.delay, yields=()))
+    np.testing.assert_array_equal(exchange_merge_order(layout, d, swapped, no_yield), swapped)
+    assert relink_lane_delays(layout, d, swapped, no_yield)[4] == 1
+    # ... but A let B in: 0.4 s off its yield delay (1.3 sigma), and B leads
+    np.testing.assert_array_equal(exchange_merge_order(layout, d, swapped, p), d.target)
+    np.testing.assert_array_equal(exchange_merge_order(layout, d, d.target, p), d.target)

@@ -33,9 +33,9 @@ import numpy as np
 
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.delays import relink_lane_delays
 from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.linking import link, merge_double_reports, relabel
+from mlkm_core.associators.merges import mend_merges
 from mlkm_core.associators.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
@@ -58,6 +58,6 @@ class AssignmentAssociator(Associator):
         if len(d):
             params = motion if motion is not None else estimate_params(layout, d)
             raw = link(layout, d, params, 'pairwise')
-            raw = restore_order(layout, d, relink_lane_delays(layout, d, raw, params), params)
+            raw = restore_order(layout, d, mend_merges(layout, d, raw, params), params)
             out[order] = relabel(merge_double_reports(d, raw, params))
         return out

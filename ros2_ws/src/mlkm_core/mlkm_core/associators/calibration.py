@@ -25,16 +25,11 @@ from mlkm_core.associators.attributes import (
     estimate_attributes,
     has_attributes,
 )
-from mlkm_core.associators.delays import (
-    estimate_delay,
-    estimate_gap_spread,
-    estimate_lane_delays,
-    gap_links,
-    relink_lane_delays,
-)
+from mlkm_core.associators.delays import estimate_delay, estimate_gap_spread, gap_links
 from mlkm_core.associators.laneorder import estimate_lane_order, restore_order
 from mlkm_core.associators.likelihood import sequence_nll, track_sequences
 from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.merges import estimate_lane_delays, estimate_yields, mend_merges
 from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, GapDelays, MotionParams
 from mlkm_core.types import Detections, Layout
 
@@ -310,8 +305,8 @@ def _fit_jumps(
 
 #: link passes that refine the in-lane order from their own tracks
 ORDER_ROUNDS = 3
-#: rounds of estimating the lanes' own delays in a merge gap and relinking with them (the
-#: second estimate, from tracks that follow the first, is the one kept)
+#: rounds of estimating each law of a merge and mending the tracks with it (the second
+#: estimate, from tracks that follow the first, is the one kept)
 LANE_ROUNDS = 2
 
 
@@ -361,14 +356,15 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
     # the gaps whose travel times scatter beyond the calibrated model (a stop-and-go queue)
     p = estimate_gap_spread(layout, d, labels, fit_motion(layout, d, labels, p))
     if with_attributes and p.delay is not None and np.any(p.delay.gap_var > 0):
-        # ... and, among them, the gaps where one lane is held up more than the others (a
-        # merge): estimated from the tracks of the pass with the gaps' spreads, then again from
-        # those relinked with the lanes' own delays
+        # ... and, among them, the merges (``merges``): first the lanes' own delays, then the
+        # delay of the cars that let a merging car in; each estimated from the tracks of the
+        # pass with the gaps' spreads, then again from those mended with the first estimate
         raw = link(layout, d, p, 'pairwise')
         tracks = restore_order(layout, d, raw, p)
-        for _ in range(LANE_ROUNDS):
-            p = estimate_lane_delays(layout, d, relabel(tracks), p)
-            if not p.delay.lanes:
-                break
-            tracks = restore_order(layout, d, relink_lane_delays(layout, d, raw, p), p)
+        for estimate in (estimate_lane_delays, estimate_yields):
+            for _ in range(LANE_ROUNDS):
+                p = estimate(layout, d, relabel(tracks), p)
+                if not (p.delay.lanes if estimate is estimate_lane_delays else p.delay.yields):
+                    break
+                tracks = restore_order(layout, d, mend_merges(layout, d, raw, p), p)
     return p

@@ -37,10 +37,10 @@ import numpy as np
 
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.delays import relink_lane_delays
 from mlkm_core.associators.kmeans import kmeans_labels
 from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.linking import match_sparse, merge_double_reports, relabel
+from mlkm_core.associators.merges import mend_merges
 from mlkm_core.associators.mlkm import detect_errors
 from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.types import Detections, Layout, segments
@@ -277,6 +277,6 @@ class RobustMLKM(Associator):
                 end_det[ids[k]] = int(last[k])
                 end_seg[ids[k]] = e
             track[idx] = ids[local]
-        track = restore_order(layout, d, relink_lane_delays(layout, d, track, p), p)
+        track = restore_order(layout, d, mend_merges(layout, d, track, p), p)
         out[order] = relabel(merge_double_reports(d, track, p))
         return out

@@ -61,8 +61,12 @@ class GapDelays:
     var: np.ndarray  # variance of that extra time [s^2]
     # gaps where the extra time depends on the lane at the gap's first sensor (a lane that ends
     # at a merge): (gap, lane, extra time [s], its variance [s^2]) of each such lane, used
-    # instead of the gap's own for the links out of that lane (``delays.relink_lane_delays``)
+    # instead of the gap's own for the links out of that lane (``merges.relink_lane_delays``)
     lanes: tuple[tuple[int, int, float, float], ...] = ()
+    # gaps where a car of a continuing lane that passes the next sensor right behind a car of a
+    # closing lane (it let that car in) is held up more: (gap, extra time [s], variance [s^2])
+    # (``merges.exchange_merge_order``)
+    yields: tuple[tuple[int, float, float], ...] = ()
 
     @classmethod
     def per_gap(cls, positions: np.ndarray, mean: np.ndarray, var: np.ndarray) -> GapDelays:
@@ -105,7 +109,7 @@ class GapDelays:
 
     def mirrored(self) -> GapDelays:
         """The same delays on the road seen backwards (positions negated and reversed), without
-        the lanes' own (a backward link does not know the lane it will leave from)."""
+        those of lanes and merges (a backward link does not know the lane it will leave from)."""
         return GapDelays(
             -self.positions[::-1], self.time[-1] - self.time[::-1], self.var[-1] - self.var[::-1]
         )

@@ -52,10 +52,10 @@ from mlkm_core.associators.base import (
     register,
 )
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.delays import relink_lane_delays
 from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.likelihood import sequence_nll, total_nll, track_sequences
 from mlkm_core.associators.linking import link, merge_double_reports, relabel
+from mlkm_core.associators.merges import mend_merges
 from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.associators.search import refine
 from mlkm_core.types import Detections, Layout
@@ -124,7 +124,7 @@ class MultiFrameAssociator(Associator):
         budget = self.config.search_budget
         with np.errstate(all='ignore'):
             pairwise = link(layout, d, params, 'pairwise')
-            pairwise = relink_lane_delays(layout, d, pairwise, params)
+            pairwise = mend_merges(layout, d, pairwise, params)
             pairwise = restore_order(layout, d, pairwise, params)
             fits = kalman_fits(layout, d, relabel(pairwise), params)
         if not fits:
