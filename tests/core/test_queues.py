@@ -291,19 +291,26 @@ def test_relinking_with_the_lanes_delays_mends_the_merge():
     assert min(b - a for a, b in zip(raw_acc, relinked_acc, strict=True)) > 0.05
 
 
+def merging_pair(stamps: list[float]):
+    """Stations 200 m apart with a lane drop between the last two: car A (target 0, lane 0)
+    and car B (target 1, lane 1, then lane 0) at 25 m/s; ``stamps`` are (A, B) at each
+    station in turn."""
+    layout = Layout(500.0, np.array([50.0, 250.0, 450.0]))
+    return layout, Detections(
+        np.array([0, 0, 1, 1, 2, 2]),
+        np.array(stamps),
+        np.full(6, 25.0),
+        np.array([0, 1, 0, 1, 0, 1]),
+        np.array([0, 1, 0, 1, 0, 0]),
+    )
+
+
 def test_a_merging_car_held_up_behind_the_one_it_passed_keeps_its_track():
     # stations 200 m apart, the lane drop between the last two; both cars at 25 m/s.
     # Car B (lane 1) passes station 1 a second before car A (lane 0) and merges behind it:
     # A is 0.3 s late at station 2, B 2.5 s. Expected late time and variance in that gap: 0.8 s
     # and 1.5 s^2 for the gap as a whole, 0 and 0.04 for lane 0, 2.5 and 0.04 for lane 1.
-    layout = Layout(500.0, np.array([50.0, 250.0, 450.0]))
-    d = Detections(
-        np.array([0, 0, 1, 1, 2, 2]),
-        np.array([92.0, 91.0, 100.0, 99.0, 108.3, 109.5]),
-        np.full(6, 25.0),
-        np.array([0, 1, 0, 1, 0, 1]),
-        np.array([0, 1, 0, 1, 0, 0]),
-    )
+    layout, d = merging_pair([92.0, 91.0, 100.0, 99.0, 108.3, 109.5])
     pooled = replace(
         MERGE_MODEL, delay=GapDelays.per_gap(layout.positions, [0.0, 0.8], [0.0, 1.5])
     )
@@ -341,14 +348,7 @@ def test_a_car_held_up_by_the_car_it_let_in_passes_after_it():
     # station 2 at 109.0 s, A at 109.4 s. Lane 0 is expected on time (0 s, variance 0.04 s^2),
     # lane 1 2.5 s late (variance 0.25), and a car of lane 0 right behind a merging one 1 s late
     # (variance 0.09).
-    layout = Layout(500.0, np.array([50.0, 250.0, 450.0]))
-    d = Detections(
-        np.array([0, 0, 1, 1, 2, 2]),
-        np.array([92.0, 91.5, 100.0, 99.5, 109.4, 109.0]),
-        np.full(6, 25.0),
-        np.array([0, 1, 0, 1, 0, 1]),
-        np.array([0, 1, 0, 1, 0, 0]),
-    )
+    layout, d = merging_pair([92.0, 91.5, 100.0, 99.5, 109.4, 109.0])
     lanes = ((1, 0, 0.0, 0.04), (1, 1, 2.5, 0.25))
     delay = GapDelays.per_gap(layout.positions, [0.0, 0.8], [0.0, 1.5])
     p = replace(MERGE_MODEL, delay=replace(delay, lanes=lanes, yields=((1, 1.0, 0.09),)))

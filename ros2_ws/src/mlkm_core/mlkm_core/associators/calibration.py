@@ -361,10 +361,10 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
         # pass with the gaps' spreads, then again from those mended with the first estimate
         raw = link(layout, d, p, 'pairwise')
         tracks = restore_order(layout, d, raw, p)
-        for estimate in (estimate_lane_delays, estimate_yields):
+        for estimate, found in ((estimate_lane_delays, 'lanes'), (estimate_yields, 'yields')):
             for _ in range(LANE_ROUNDS):
                 p = estimate(layout, d, relabel(tracks), p)
-                if not (p.delay.lanes if estimate is estimate_lane_delays else p.delay.yields):
+                if not getattr(p.delay, found):
                     break
                 tracks = restore_order(layout, d, mend_merges(layout, d, raw, p), p)
     return p

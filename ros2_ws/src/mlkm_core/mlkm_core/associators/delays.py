@@ -40,6 +40,29 @@ def gap_links(layout: Layout, d: Detections, labels: np.ndarray) -> np.ndarray:
     return np.bincount(d.sensor_index[a[one]], minlength=layout.n_sensors)[:-1]
 
 
+def link_residuals(
+    layout: Layout, d: Detections, a: np.ndarray, b: np.ndarray, p: MotionParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """``motion.trapezoid_residual`` of the links from detections ``a`` to ``b``."""
+    pos = layout.positions
+    return trapezoid_residual(
+        p,
+        pos[d.sensor_index[a]],
+        pos[d.sensor_index[b]],
+        d.stamp[a],
+        d.stamp[b],
+        1.0 / d.velocity[a],
+        1.0 / d.velocity[b],
+    )
+
+
+def robust_location(e: np.ndarray) -> tuple[float, float]:
+    """Median and squared robust spread (1.4826 median absolute deviation) of ``e``: the few
+    wrong links of a first pass do not count."""
+    med = float(np.median(e))
+    return med, (1.4826 * float(np.median(np.abs(e - med)))) ** 2
+
+
 def estimate_delay(layout: Layout, d: Detections, labels: np.ndarray) -> GapDelays | None:
     """Extra travel time of the gaps the first pass could not link (``MotionParams.delay``).
 
@@ -116,24 +139,14 @@ def estimate_gap_spread(
     a, b = a[one], b[one]
     if a.size == 0:
         return p
-    pos = layout.positions
-    e_t, model = trapezoid_residual(
-        p,
-        pos[d.sensor_index[a]],
-        pos[d.sensor_index[b]],
-        d.stamp[a],
-        d.stamp[b],
-        1.0 / d.velocity[a],
-        1.0 / d.velocity[b],
-    )
+    e_t, model = link_residuals(layout, d, a, b, p)
     gap = d.sensor_index[a]
     shift, var = np.zeros(n_s - 1), np.zeros(n_s - 1)
     for g in np.unique(gap):
         k = gap == g
         if k.sum() < MIN_GAP_LINKS:
             continue
-        med = float(np.median(e_t[k]))
-        spread2 = (1.4826 * float(np.median(np.abs(e_t[k] - med)))) ** 2
+        med, spread2 = robust_location(e_t[k])
         own = float(np.median(model[k]))
         if spread2 > SPREAD_RATIO**2 * own and spread2 > MIN_SPREAD**2:
             shift[g], var[g] = med, spread2 - own
@@ -142,4 +155,4 @@ def estimate_gap_spread(
     old = p.delay
     if old is not None:
         shift, var = shift + old.gap_time, var + old.gap_var
-    return replace(p, delay=GapDelays.per_gap(pos, shift, var))
+    return replace(p, delay=GapDelays.per_gap(layout.positions, shift, var))

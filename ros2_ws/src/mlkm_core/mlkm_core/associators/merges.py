@@ -25,8 +25,9 @@ from dataclasses import replace
 import numpy as np
 
 from mlkm_core.associators.base import link_pairs
+from mlkm_core.associators.delays import link_residuals, robust_location
 from mlkm_core.associators.linking import gate_pairs, match_sparse
-from mlkm_core.associators.motion import MotionParams, PairwiseModel, trapezoid_residual
+from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.types import Detections, Layout
 
 #: a queue gap gets an extra time per lane where the medians of the lanes' travel-time
@@ -36,12 +37,6 @@ from mlkm_core.types import Detections, Layout
 LANE_SEPARATION = 1.0
 #: links out of a lane needed to judge its extra time
 MIN_LANE_LINKS = 10
-
-
-def _robust(e: np.ndarray) -> tuple[float, float]:
-    """Median and squared robust spread (1.4826 median absolute deviation) of ``e``."""
-    med = float(np.median(e))
-    return med, (1.4826 * float(np.median(np.abs(e - med)))) ** 2
 
 
 def estimate_lane_delays(
@@ -66,16 +61,7 @@ def estimate_lane_delays(
     a, b = link_pairs(d, labels)
     one = (d.sensor_index[b] == d.sensor_index[a] + 1) & (d.lane[a] >= 0)
     a, b = a[one], b[one]
-    pos = layout.positions
-    e_t, model = trapezoid_residual(
-        p,
-        pos[d.sensor_index[a]],
-        pos[d.sensor_index[b]],
-        d.stamp[a],
-        d.stamp[b],
-        1.0 / d.velocity[a],
-        1.0 / d.velocity[b],
-    )
+    e_t, model = link_residuals(layout, d, a, b, p)
     for g in spread_gaps:
         rows = []
         in_gap = d.sensor_index[a] == g
@@ -83,7 +69,7 @@ def estimate_lane_delays(
             k = in_gap & (d.lane[a] == lane)
             if k.sum() < MIN_LANE_LINKS:
                 continue
-            med, spread2 = _robust(e_t[k])
+            med, spread2 = robust_location(e_t[k])
             own = float(np.median(model[k])) - delay.gap_var[g]
             rows.append((int(lane), med, spread2, own))
         if len(rows) < 2:
@@ -220,7 +206,6 @@ def estimate_yields(
     delay = p.delay
     if delay is None or not delay.lanes or d.lane is None:
         return p
-    pos = layout.positions
     yields: list[tuple[int, float, float]] = []
     for g in sorted({x[0] for x in delay.lanes}):
         closing = closing_lanes(d, g)
@@ -232,17 +217,9 @@ def estimate_yields(
         others = ~merging & ~behind
         if behind.sum() < MIN_YIELD_LINKS or others.sum() < MIN_YIELD_LINKS:
             continue
-        e_t, model = trapezoid_residual(
-            p,
-            pos[g],
-            pos[g + 1],
-            d.stamp[up],
-            d.stamp[down],
-            1 / d.velocity[up],
-            1 / d.velocity[down],
-        )
-        med_y, spread_y = _robust(e_t[behind])
-        med_o, spread_o = _robust(e_t[others])
+        e_t, model = link_residuals(layout, d, up, down, p)
+        med_y, spread_y = robust_location(e_t[behind])
+        med_o, spread_o = robust_location(e_t[others])
         gap_medians = abs(med_y - med_o)
         # standard error of a median: sqrt(pi / 2) sigma / sqrt(n)
         error = np.sqrt(np.pi / 2 * (spread_y / behind.sum() + spread_o / others.sum()))
