@@ -40,9 +40,9 @@ PINNED = {
     ('clutter_50x20', 'mlkm_no_ec'): (778, 952),
     ('clutter_50x20', 'mlkm_robust'): (949, 952),
     ('clutter_50x20', 'multiframe'): (952, 952),
-    ('clutter_200x50', 'assignment'): (9230, 9503),
+    ('clutter_200x50', 'assignment'): (9287, 9503),
     ('clutter_200x50', 'mlkm'): (7444, 9503),
-    ('clutter_200x50', 'mlkm_robust'): (9216, 9503),
+    ('clutter_200x50', 'mlkm_robust'): (9273, 9503),
     ('clutter_200x50', 'multiframe'): (9420, 9503),
 }
 _CACHE: dict = {}

@@ -20,7 +20,11 @@ time-gated candidate graph) with dummy rows and columns:
   (``laneorder``; two neighbours of a lane whose links the pass crossed in a queue are given
   back their order, ``laneorder.restore_order``);
 * a lane change on top of a station, reported by both lanes' loops, keeps one track
-  (``linking.merge_double_reports``).
+  (``linking.merge_double_reports``);
+* a track the pass ends where no target can leave is joined to one it starts a few sensors
+  downstream where none can enter, when the link costs less than the two ends do under the
+  whole-track model (``linking.join_fragments``; the entries and exits are
+  ``AssociatorConfig.entries`` / ``exits``, none on a closed road).
 
 The parameters are not given to the method: they are estimated from the data (pass 1 with
 generic values, then the moments and the maximum likelihood of its tracks, ``calibration``),
@@ -29,12 +33,14 @@ the same estimates ``multiframe`` uses, so the two differ only in the evidence t
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.laneorder import restore_order
-from mlkm_core.associators.linking import link, merge_double_reports, relabel
+from mlkm_core.associators.linking import finish_tracks, link
 from mlkm_core.associators.merges import mend_merges
 from mlkm_core.associators.motion import MotionParams
 from mlkm_core.types import Detections, Layout
@@ -57,7 +63,11 @@ class AssignmentAssociator(Associator):
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d):
             params = motion if motion is not None else estimate_params(layout, d)
+            openings = MotionParams.road_openings(
+                layout.positions, self.config.entries, self.config.exits
+            )
+            params = replace(params, open_road=openings)
             raw = link(layout, d, params, 'pairwise')
             raw = restore_order(layout, d, mend_merges(layout, d, raw, params), params)
-            out[order] = relabel(merge_double_reports(d, raw, params))
+            out[order] = finish_tracks(layout, d, raw, params)
         return out

@@ -137,14 +137,13 @@ def sequence_nll(
     Every further detection pays its innovation NLL, capped (past a squared Mahalanobis
     distance of 4 gates, so that a few wrong links do not dominate), plus the miss cost per
     skipped sensor, as in the forward pass. A sequence flagged ``birth`` (the track starts
-    here) pays the new-track cost and, if it has two detections or more, the miss cost of every
-    sensor before its first detection (capped at ``max_skip + 1``: targets enter before the
-    first sensor); one flagged ``end`` (the track ends here) with two detections or more pays
-    the miss cost of every sensor after its last one (capped at 10). On an open road
-    (``params.open_road``) only the sensors after the last entry upstream / before the first
-    exit downstream count. A single detection is a
-    false alarm: the new-track cost only. ``rows`` optionally gives per-row motion parameters
-    (see ``KalmanModel``). ``state`` continues rows from ``sequence_state``.
+    here) pays the new-track cost and, if it has two detections or more, the miss cost of the
+    sensors it passed unseen before its first detection (``MotionParams.misses_before``); one
+    flagged ``end`` (the track ends here) with two detections or more pays the miss cost of
+    the sensors it would pass unseen after its last one (``MotionParams.misses_after``). A
+    single detection is a false alarm: the new-track cost only. ``rows`` optionally gives
+    per-row motion parameters (see ``KalmanModel``). ``state`` continues rows from
+    ``sequence_state``.
     """
     n_seq = seqs.shape[0]
     birth = np.ones(n_seq, bool) if birth is None else birth
@@ -155,13 +154,8 @@ def sequence_nll(
     several = count >= 2
     born = birth & several
     ended = end & several
-    before, after = first_sensor[born], n_s - 1 - last[ended]
-    if params.open_road is not None:
-        opened, closed = params.open_road
-        before = before - opened[first_sensor[born]]
-        after = closed[last[ended]] - last[ended]
-    out[born] += np.minimum(before, params.max_skip + 1) * params.miss_cost
-    out[ended] += np.minimum(after, 10) * params.miss_cost
+    out[born] += params.misses_before(first_sensor[born])
+    out[ended] += params.misses_after(last[ended], n_s)
     return out
 
 

@@ -17,7 +17,10 @@
   ``match_sparse``: a track left unmatched is a miss (cost -log p_miss per skipped sensor,
   carried forward with the growing variance of the longer gap), a detection left unmatched
   starts a new track (cost -log kappa, kappa = clutter density).
+* ``join_fragments``: a track the pass ends where no target can leave, joined to one it
+  starts downstream where none can enter, when the whole-track cost favours the link.
 * ``relabel``: a track of a single detection is a false alarm and is labelled UNASSIGNED.
+* ``finish_tracks``: what every associator does last (double reports, fragments, relabel).
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from mlkm_core.associators.base import canonical_order
-from mlkm_core.associators.motion import MotionParams, make_model
+from mlkm_core.associators.motion import MotionParams, PairwiseModel, make_model
 from mlkm_core.types import Detections, Layout
 
 
@@ -235,6 +238,94 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
             mapping[src] = root(src)
         out[valid] = mapping[out[valid]]
     return out
+
+
+def join_fragments(
+    layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
+) -> np.ndarray:
+    """Join a track that ends mid-road to one that starts a few sensors downstream.
+
+    The forward pass decides each sensor alone: leaving a track unmatched costs it one miss
+    and the detection one new track, so it breaks a link whose cost is a few nats above that
+    (a car accelerating hard away from an on-ramp, one that waited to merge at a lane drop).
+    Under the whole-track model of ``likelihood.sequence_nll`` a break costs much more where
+    targets can neither leave nor enter: the track that ends has missed every sensor after it
+    (``MotionParams.misses_after``) and the one that starts is a new track that has missed
+    every sensor before it (``misses_before``). Here each track of two detections or more that
+    ends where it could not leave (``params.open_road``; anywhere before the last sensor on a
+    closed road) is matched one-to-one (``match_sparse``) to those that start within
+    ``max_skip + 1`` sensors downstream where they could not enter. A link is scored as the
+    pairwise pass scores it (motion model, lane and length, the pass's gate) plus a miss per
+    sensor skipped, against the two ends' costs. ``labels`` are raw track ids (-1 allowed) and
+    may hold two reports of a vehicle at one sensor (``merge_double_reports``); a track's end
+    is its latest detection and its start its earliest. Returns new labels.
+    """
+    out = labels.copy()
+    valid = np.flatnonzero(out >= 0)
+    if valid.size == 0:
+        return out
+    n_s = layout.n_sensors
+    order = valid[np.lexsort((d.stamp[valid], d.sensor_index[valid], out[valid]))]
+    lab = out[order]
+    head = np.r_[True, lab[1:] != lab[:-1]]
+    tail = np.r_[lab[1:] != lab[:-1], True]
+    ends, starts = order[tail & ~head], order[head & ~tail]
+    death = params.misses_after(d.sensor_index[ends], n_s)
+    ends, death = ends[death > 0], death[death > 0]
+    birth = params.misses_before(d.sensor_index[starts])
+    starts, birth = starts[birth > 0], birth[birth > 0] + params.new_cost
+    if ends.size == 0 or starts.size == 0:
+        return out
+    pos = layout.positions
+    sa, sb = d.sensor_index[ends], d.sensor_index[starts]
+    m = PairwiseModel(params)
+    m.grow(ends.size)
+    m.start(np.arange(ends.size), pos[sa], d.stamp[ends], 1.0 / d.velocity[ends])
+    att = params.attributes
+    att = att.tracker(accumulate=False) if att is not None and att.active else None
+    if att is not None:
+        att.grow(ends.size)
+        att.start(np.arange(ends.size), ends)
+    rows, cols, weight = [], [], []
+    for skip in range(params.max_skip + 1):
+        i = np.flatnonzero(sa + 1 + skip < n_s)
+        pred = m.predict(i, pos[sa[i] + 1 + skip])
+        r, c = gate_pairs(*m.gate_window(pred), d.stamp[starts])
+        keep = sb[c] == sa[i[r]] + 1 + skip
+        r, c = r[keep], c[keep]
+        if r.size == 0:
+            continue
+        nll, d2 = m.cost(pred.take(r), d.stamp[starts[c]], 1.0 / d.velocity[starts[c]])
+        if att is not None:
+            nll = nll + att.cost(i[r], starts[c])
+        w = nll + skip * params.miss_cost - death[i[r]] - birth[c]
+        rows.append(i[r])
+        cols.append(c)
+        weight.append(np.where(d2 <= params.gate, w, 0.0))
+    if not rows:
+        return out
+    mr, mc = match_sparse(
+        np.concatenate(rows), np.concatenate(cols), np.concatenate(weight), ends.size, starts.size
+    )
+    mapping = np.arange(int(out.max()) + 1)
+    mapping[out[starts[mc]]] = out[ends[mr]]
+    for _ in range(mr.size):  # a chain of joins takes the label of its first fragment
+        nxt = mapping[mapping]
+        if np.array_equal(nxt, mapping):
+            break
+        mapping = nxt
+    out[valid] = mapping[out[valid]]
+    return out
+
+
+def finish_tracks(
+    layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
+) -> np.ndarray:
+    """The last steps of every associator: a lane change's two reports share a track
+    (``merge_double_reports``), fragments of a track are joined (``join_fragments``), and a
+    track of a single detection becomes UNASSIGNED (``relabel``)."""
+    labels = merge_double_reports(d, labels, params)
+    return relabel(join_fragments(layout, d, labels, params))
 
 
 #: largest speed change [m/s^2] between the two loops' reports of a vehicle changing lane

@@ -25,8 +25,10 @@ changes, and why:
 Parameters: the variances of the pairwise cost are estimated from the data exactly as for
 ``assignment`` (``calibration.estimate_params``). The tracks then get the same corrections as
 ``assignment``'s: in queues, two consecutive vehicles of a lane whose links cross get their
-order back (``laneorder.restore_order``), and a lane change's two reports share a track
-(``linking.merge_double_reports``).
+order back (``laneorder.restore_order``), a lane change's two reports share a track
+(``linking.merge_double_reports``), and a track that ends where no target can leave is joined
+to one that starts downstream where none can enter when the whole-track cost favours it
+(``linking.join_fragments``, with ``AssociatorConfig.entries`` / ``exits``).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.kmeans import kmeans_labels
 from mlkm_core.associators.laneorder import restore_order
-from mlkm_core.associators.linking import match_sparse, merge_double_reports, relabel
+from mlkm_core.associators.linking import finish_tracks, match_sparse
 from mlkm_core.associators.merges import mend_merges
 from mlkm_core.associators.mlkm import detect_errors
 from mlkm_core.associators.motion import MotionParams, PairwiseModel
@@ -221,6 +223,10 @@ class RobustMLKM(Associator):
         if len(d) == 0:
             return out
         p = motion if motion is not None else estimate_params(layout, d)
+        openings = MotionParams.road_openings(
+            layout.positions, self.config.entries, self.config.exits
+        )
+        p = replace(p, open_road=openings)
         pos = layout.positions
         u = 1.0 / d.velocity
         track = np.full(len(d), -1, dtype=np.int64)
@@ -278,5 +284,5 @@ class RobustMLKM(Associator):
                 end_seg[ids[k]] = e
             track[idx] = ids[local]
         track = restore_order(layout, d, mend_merges(layout, d, track, p), p)
-        out[order] = relabel(merge_double_reports(d, track, p))
+        out[order] = finish_tracks(layout, d, track, p)
         return out

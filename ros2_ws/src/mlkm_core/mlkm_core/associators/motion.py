@@ -115,6 +115,10 @@ class GapDelays:
         )
 
 
+#: most sensors a track that ends before the last one is charged a miss for
+END_MISSES = 10
+
+
 @dataclass(frozen=True)
 class MotionParams:
     """Parameters of the traffic and sensor model (estimated by ``calibration``)."""
@@ -181,6 +185,24 @@ class MotionParams:
     @property
     def miss_cost(self) -> float:
         return -math.log(self.p_miss)
+
+    def misses_before(self, first: np.ndarray) -> np.ndarray:
+        """Miss cost of the sensors a track seen first at sensor ``first`` has passed unseen.
+
+        Those after the last entry upstream (``open_road``; on a closed road all of them), at
+        most ``max_skip + 1``: targets enter the road before its first sensor.
+        """
+        opened = 0 if self.open_road is None else self.open_road[0][first]
+        return np.minimum(first - opened, self.max_skip + 1) * self.miss_cost
+
+    def misses_after(self, last: np.ndarray, n_sensors: int) -> np.ndarray:
+        """Miss cost of the sensors a track seen last at sensor ``last`` will pass unseen.
+
+        Those before the first exit downstream (``open_road``; on a closed road all of them),
+        at most ``END_MISSES``.
+        """
+        closed = n_sensors - 1 if self.open_road is None else self.open_road[1][last]
+        return np.minimum(closed - last, END_MISSES) * self.miss_cost
 
     @property
     def new_cost(self) -> float:

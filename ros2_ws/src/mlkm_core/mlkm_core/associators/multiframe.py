@@ -21,13 +21,15 @@ from higher-order evidence. Two sources:
 
 The model parameters are estimated from the data (``calibration.estimate_params``), lane and
 length included when reported. On an open road (``AssociatorConfig.entries`` / ``exits``) a
-track that starts after an entry or ends before an exit pays only for the sensors it could
-have passed. The local search scores at most ``AssociatorConfig.search_budget`` candidates per
-starting point. The result is the pairwise assignment's when the Kalman model predicts the
-calibrated pairwise tracks clearly worse than the pairwise model (``kalman_fits``: stop-and-go
-traffic, where its likelihood would steer the search wrong, and where the search used to cost
-minutes) or when neither starting point can be scored (the likelihood is not finite); a
-cut-short search and both fallbacks issue a ``DegradedResultWarning``.
+track that starts after an entry or ends before an exit pays only for the sensors it could have
+passed; tracks that end or start where no target can leave or enter are joined after the search
+where the whole-track cost favours it (``linking.join_fragments``). The local search scores at
+most ``AssociatorConfig.search_budget`` candidates per starting point. The result is the
+pairwise assignment's when the Kalman model predicts the calibrated pairwise tracks clearly
+worse than the pairwise model (``kalman_fits``: stop-and-go traffic, where its likelihood would
+steer the search wrong, and where the search used to cost minutes) or when neither starting
+point can be scored (the likelihood is not finite); a cut-short search and both fallbacks issue
+a ``DegradedResultWarning``.
 
 Why this and not a min-cost flow or a full multi-dimensional assignment: the flow needs
 pairwise (Markov) edge costs, which cannot carry the learnt cruise speed, and the S-D
@@ -54,7 +56,7 @@ from mlkm_core.associators.base import (
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.likelihood import sequence_nll, total_nll, track_sequences
-from mlkm_core.associators.linking import link, merge_double_reports, relabel
+from mlkm_core.associators.linking import finish_tracks, link, relabel
 from mlkm_core.associators.merges import mend_merges
 from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.associators.search import refine
@@ -134,7 +136,7 @@ class MultiFrameAssociator(Associator):
                 DegradedResultWarning,
                 stacklevel=2,
             )
-            out[order] = relabel(merge_double_reports(d, pairwise, params))
+            out[order] = finish_tracks(layout, d, pairwise, params)
             return out
         # local search from two starting points (the Kalman and the pairwise forward pass);
         # keep the more likely result under the Kalman model
@@ -165,5 +167,5 @@ class MultiFrameAssociator(Associator):
                 stacklevel=2,
             )
             best = pairwise
-        out[order] = relabel(merge_double_reports(d, best, params))
+        out[order] = finish_tracks(layout, d, best, params)
         return out
