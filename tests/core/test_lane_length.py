@@ -180,6 +180,13 @@ def test_a_slow_vehicles_twin_reports_may_be_far_apart():
     # at 30 m/s, 0.7 s apart are two vehicles (a car covers its length in 0.15 s)
     fast = merge_double_reports(twin_reports(30.0, 0.7, 0.1), labels, p)
     np.testing.assert_array_equal(fast, labels)
+    # a vehicle braking to merge into a queue: 7.1 -> 5.3 m/s between reports 0.48 s apart
+    # (3.75 m/s^2) with speeds measured to 0.05 m/s; braking twice as hard is not one vehicle
+    exact = MotionParams(stamp_noise=0.05, velocity_noise=0.05)
+    braking = merge_double_reports(twin_reports(7.1, 0.48, -1.8), labels, exact)
+    np.testing.assert_array_equal(braking, [7] * 4)
+    harder = merge_double_reports(twin_reports(7.1, 0.48, -3.6), labels, exact)
+    np.testing.assert_array_equal(harder, labels)
     # in adjacent lanes only
     far = twin_reports(5.0, 0.1, 0.1)
     far.lane[3] = 2

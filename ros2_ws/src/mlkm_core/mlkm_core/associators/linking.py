@@ -328,8 +328,11 @@ def finish_tracks(
     return relabel(join_fragments(layout, d, labels, params))
 
 
-#: largest speed change [m/s^2] between the two loops' reports of a vehicle changing lane
-TWIN_ACCELERATION = 3.0
+#: largest speed change [m/s^2] between the two loops' reports of a vehicle changing lane:
+#: ordinary braking, as of a vehicle that slows down to merge into a queue (3-4 m/s^2; the
+#: comfortable deceleration of car-following models, SUMO's default for a car included, is
+#: 4.5 m/s^2)
+TWIN_ACCELERATION = 4.5
 #: vehicle length [m] assumed where the sensor does not report it
 TYPICAL_LENGTH = 4.5
 
