@@ -33,8 +33,6 @@ the same estimates ``multiframe`` uses, so the two differ only in the evidence t
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from mlkm_core.associators.base import Associator, canonical_order, register
@@ -63,10 +61,7 @@ class AssignmentAssociator(Associator):
         out = np.full(len(d), -1, dtype=np.int64)
         if len(d):
             params = motion if motion is not None else estimate_params(layout, d)
-            openings = MotionParams.road_openings(
-                layout.positions, self.config.entries, self.config.exits
-            )
-            params = replace(params, open_road=openings)
+            params = params.on_road(layout.positions, self.config.entries, self.config.exits)
             raw = link(layout, d, params, 'pairwise')
             raw = restore_order(layout, d, mend_merges(layout, d, raw, params), params)
             out[order] = finish_tracks(layout, d, raw, params)

@@ -33,7 +33,8 @@ class AssociatorConfig:
     search_budget: int = 500_000
     # an open road: positions [m] along the road where vehicles can enter (on-ramps) and leave
     # (off-ramps) between sensors; a track that starts after an entry or ends before an exit
-    # is not charged for the sensors it could not pass (multiframe's likelihood)
+    # is not charged for the sensors it could not pass (multiframe's likelihood, and the
+    # joining of track fragments of the three tracking methods)
     entries: tuple[float, ...] = ()
     exits: tuple[float, ...] = ()
 

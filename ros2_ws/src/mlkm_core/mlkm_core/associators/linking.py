@@ -173,6 +173,18 @@ def link(
     return labels
 
 
+def _track_bounds(
+    d: Detections, labels: np.ndarray, valid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The detections ``valid`` ordered by (track, sensor, stamp), and which of them are the
+    first (head) and the last (tail) of their track."""
+    order = valid[np.lexsort((d.stamp[valid], d.sensor_index[valid], labels[valid]))]
+    lab = labels[order]
+    head = np.r_[True, lab[1:] != lab[:-1]]
+    tail = np.r_[lab[1:] != lab[:-1], True]
+    return order, head, tail
+
+
 def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams) -> np.ndarray:
     """Give both reports of a vehicle changing lane on top of a station one track.
 
@@ -200,10 +212,7 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
     valid = np.flatnonzero(out >= 0)
     if valid.size == 0:
         return out
-    order = valid[np.lexsort((d.sensor_index[valid], out[valid]))]
-    lab = out[order]
-    head = np.r_[True, lab[1:] != lab[:-1]]
-    tail = np.r_[lab[1:] != lab[:-1], True]
+    order, head, tail = _track_bounds(d, out, valid)
     ends = order[tail & ~head]  # last detection of a track with two or more
     starts = order[head & ~tail]  # first detection of a track with two or more
     alone = order[head & tail]  # a track of one detection
@@ -265,10 +274,7 @@ def join_fragments(
     if valid.size == 0:
         return out
     n_s = layout.n_sensors
-    order = valid[np.lexsort((d.stamp[valid], d.sensor_index[valid], out[valid]))]
-    lab = out[order]
-    head = np.r_[True, lab[1:] != lab[:-1]]
-    tail = np.r_[lab[1:] != lab[:-1], True]
+    order, head, tail = _track_bounds(d, out, valid)
     ends, starts = order[tail & ~head], order[head & ~tail]
     death = params.misses_after(d.sensor_index[ends], n_s)
     ends, death = ends[death > 0], death[death > 0]

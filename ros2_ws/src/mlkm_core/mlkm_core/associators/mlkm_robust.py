@@ -223,10 +223,7 @@ class RobustMLKM(Associator):
         if len(d) == 0:
             return out
         p = motion if motion is not None else estimate_params(layout, d)
-        openings = MotionParams.road_openings(
-            layout.positions, self.config.entries, self.config.exits
-        )
-        p = replace(p, open_road=openings)
+        p = p.on_road(layout.positions, self.config.entries, self.config.exits)
         pos = layout.positions
         u = 1.0 / d.velocity
         track = np.full(len(d), -1, dtype=np.int64)

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -173,6 +173,13 @@ class MotionParams:
             k = int(np.searchsorted(positions, e))  # sensors 0..k-1 are upstream of the exit
             last[:k] = np.minimum(last[:k], k - 1)
         return first, last
+
+    def on_road(
+        self, positions: np.ndarray, entries: tuple[float, ...], exits: tuple[float, ...]
+    ) -> MotionParams:
+        """These parameters on a road with sensors at ``positions`` and entries and exits at
+        the given positions [m] (``open_road``; a closed road without either)."""
+        return replace(self, open_road=MotionParams.road_openings(positions, entries, exits))
 
     def extra_time(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
         """Extra travel time [s] from position x1 to x2 (``delay``; 0 without it)."""

@@ -119,10 +119,7 @@ class MultiFrameAssociator(Associator):
         if len(d) == 0:
             return out
         params = motion if motion is not None else estimate_params(layout, d)
-        openings = MotionParams.road_openings(
-            layout.positions, self.config.entries, self.config.exits
-        )
-        params = replace(params, open_road=openings)
+        params = params.on_road(layout.positions, self.config.entries, self.config.exits)
         budget = self.config.search_budget
         with np.errstate(all='ignore'):
             pairwise = link(layout, d, params, 'pairwise')
