@@ -108,6 +108,17 @@ def test_reader_maps_sensor_ids_to_positions(tmp_path):
             lambda r: 'sensor,position_m,stamp_s,velocity_mps,target_id',
             'line 1: missing column(s) sensor_id',
         ),
+        (
+            1,
+            lambda r: 'sensor_id,position_m,stamp_s,velocty_mps,target_id',
+            "line 1: missing column(s) velocity_mps; unknown column 'velocty_mps' "
+            '(did you mean velocity_mps?)',
+        ),
+        (
+            2,
+            lambda r: ','.join([r.split(',')[0], '-0.5', *r.split(',')[2:]]),
+            'line 2: position_m must be >= 0 (on the road) and finite, got -0.5',
+        ),
     ],
 )
 def test_malformed_csv_names_the_line_and_writes_nothing(tmp_path, capsys, line, edit, message):
@@ -180,7 +191,7 @@ def test_absurd_values_refuse_the_file_naming_every_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert 'bad.csv: 2 invalid rows' in err
     assert 'line 3: velocity_mps 1e+308 is outside [0.01, 150] m/s' in err
-    assert 'line 6: stamp_s 1e300 is outside [0, 2.14748e+09] s' in err
+    assert 'line 6: stamp_s 1e300 is outside [-1e+12, 1e+12] s' in err
     assert '--skip-invalid' in err
     assert not (tmp_path / 'out.csv').exists()
 
@@ -217,10 +228,10 @@ def test_bounds_options_move_the_limits(tmp_path, capsys):
     early[2] = '-2.5'
     lines[5] = ','.join(early)
     _save(tmp_path, lines)
-    assert _associate(tmp_path, 'bad.csv') == 2
-    assert 'line 6: stamp_s -2.5 is outside [0, ' in capsys.readouterr().err
-    assert _associate(tmp_path, 'bad.csv', '--min-stamp', '-10') == 0
-    assert _associate(tmp_path, 'bad.csv', '--min-stamp', '-10', '--max-speed', '20') == 2
+    assert _associate(tmp_path, 'bad.csv', '--min-stamp', '0') == 2
+    assert 'line 6: stamp_s -2.5 is outside [0, 1e+12] s' in capsys.readouterr().err
+    assert _associate(tmp_path, 'bad.csv', '--min-stamp', '-2.5') == 0
+    assert _associate(tmp_path, 'bad.csv', '--max-speed', '20') == 2
     assert 'outside [0.01, 20] m/s (--min-speed/--max-speed)' in capsys.readouterr().err
     assert _associate(tmp_path, 'bad.csv', '--min-speed', '5', '--max-speed', '4') == 2
     assert 'invalid bounds' in capsys.readouterr().err
@@ -426,3 +437,119 @@ def test_batch_associators_take_the_ramp_positions(tmp_path, capsys):
     assert [r['track_id'] for r in _out_rows(tmp_path)] != tracks_closed
     assert 'accuracy: 97.16 % (137/141)' in closed
     assert 'accuracy: 99.29 % (140/141)' in open_road
+
+
+def _labels(tmp_path, name, *extra):
+    """(track ids of the rows, printed accuracy line) of ``mlkm associate`` on ``name``."""
+    rc = main(
+        [
+            'associate',
+            '--input',
+            str(tmp_path / name),
+            '--output',
+            str(tmp_path / f'{name}.out'),
+            *extra,
+        ]
+    )
+    assert rc == 0
+    with open(tmp_path / f'{name}.out') as f:
+        return [r['track_id'] for r in csv.DictReader(f)]
+
+
+def test_two_vehicles_at_one_stamp_without_lane_are_both_kept(tmp_path, capsys):
+    # Two vehicles cross the first station in the same millisecond, in lanes the file does
+    # not give, at different speeds: two reports, as the node keeps them (duplicate_key).
+    ds = _write(tmp_path / 'in.csv')
+    d = ds.detections
+    i, j = np.flatnonzero(d.sensor_index == 0)[:2]
+    delta = d.stamp[i] - d.stamp[j]  # vehicle j, all along the road, delta earlier
+    lines = _lines(tmp_path)
+    for k in np.flatnonzero(d.target == d.target[j]):
+        row = lines[1 + k].split(',')
+        row[2] = repr(float(d.stamp[k] + delta))
+        lines[1 + k] = ','.join(row)
+    a, b = lines[1 + i].split(','), lines[1 + j].split(',')
+    assert a[:3] == b[:3] and a[3] != b[3]
+    _save(tmp_path, lines)
+    tracks = _labels(tmp_path, 'bad.csv', '--method', 'assignment')
+    assert len(tracks) == len(d)
+    assert 'accuracy: 100.00 %' in capsys.readouterr().out
+    # each row keeps its own label: the output is keyed by row, not by (sensor, stamp)
+    assert tracks[i] != tracks[j] and min(int(tracks[i]), int(tracks[j])) >= 0
+    # the same report twice (same sensor, stamp and velocity, lane unknown) is a duplicate
+    _save(tmp_path, [*lines, lines[1 + i]])
+    assert _associate(tmp_path, 'bad.csv') == 2
+    err = capsys.readouterr().err
+    assert f'line {len(lines) + 1}: duplicate of line {i + 2}' in err
+    assert 'same sensor_id, stamp_s and velocity_mps, lane unknown' in err
+
+
+@pytest.mark.parametrize(
+    'method,extra',
+    [('mlkm', []), ('assignment', []), ('multiframe', []), ('multiframe', ['--stream'])],
+)
+def test_negative_relative_stamps_give_the_labels_of_the_unshifted_file(
+    tmp_path, capsys, method, extra
+):
+    # stamps measured from an event: the same traffic 100 s earlier, half of it before 0
+    config = SimConfig(n_targets=20, n_sensors=10, miss_probability=0.05, false_alarm_rate=0.02)
+    ds = simulate(config, 3)
+    d = ds.detections
+    for name, shift in (('a.csv', 0.0), ('b.csv', -100.0)):
+        lines = [HEADER]
+        for i in range(len(d)):
+            k = d.sensor_index[i]
+            stamp = round(float(d.stamp[i]), 3) + shift
+            lines.append(
+                f'{k},{float(ds.layout.positions[k])!r},{stamp:.3f},'
+                f'{float(d.velocity[i])!r},{d.target[i]}'
+            )
+        _save(tmp_path, lines, name)
+    assert any(line.split(',')[2].startswith('-') for line in _lines(tmp_path, 'b.csv'))
+    plain = _labels(tmp_path, 'a.csv', '--method', method, *extra)
+    plain_out = capsys.readouterr().out
+    shifted = _labels(tmp_path, 'b.csv', '--method', method, *extra)
+    shifted_out = capsys.readouterr().out
+    assert shifted == plain
+    accuracy = re.search(r'accuracy: .*', plain_out).group(0)
+    assert accuracy in shifted_out
+
+
+def test_a_stamp_that_is_not_finite_is_refused_naming_line_and_column(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    lines = _lines(tmp_path)
+    row = lines[3].split(',')
+    row[2] = 'nan'
+    lines[3] = ','.join(row)
+    _save(tmp_path, lines)
+    assert _associate(tmp_path, 'bad.csv') == 2
+    assert 'line 4: stamp_s must be finite, got nan' in capsys.readouterr().err
+
+
+def test_a_station_at_the_road_origin_is_accepted(tmp_path, capsys):
+    ds = _write(tmp_path / 'in.csv')
+    origin = float(ds.layout.positions[0])
+    lines = _lines(tmp_path)
+    moved = [lines[0]]
+    for line in lines[1:]:
+        row = line.split(',')
+        row[1] = repr(float(row[1]) - origin)  # the first station at 0.0
+        moved.append(','.join(row))
+    _save(tmp_path, moved, 'origin.csv')
+    assert '100,0.0,' in (tmp_path / 'origin.csv').read_text()
+    plain = _labels(tmp_path, 'in.csv')
+    plain_out = capsys.readouterr().out
+    assert _labels(tmp_path, 'origin.csv') == plain
+    accuracy = re.search(r'accuracy: .*', plain_out).group(0)
+    assert accuracy in capsys.readouterr().out
+
+
+def test_a_misspelt_optional_column_is_named_and_copied(tmp_path, capsys):
+    _write(tmp_path / 'in.csv')
+    lines = _lines(tmp_path)
+    _save(tmp_path, [lines[0] + ',lenght_m'] + [f'{r},4.5' for r in lines[1:]])
+    tracks = _labels(tmp_path, 'bad.csv')
+    err = capsys.readouterr().err
+    assert "unknown column 'lenght_m' is not read" in err and 'did you mean length_m?' in err
+    rows = list(csv.DictReader(open(tmp_path / 'bad.csv.out')))
+    assert [r['lenght_m'] for r in rows] == ['4.5'] * len(tracks)

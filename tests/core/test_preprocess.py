@@ -4,6 +4,7 @@ import numpy as np
 
 from mlkm_core.preprocess import back_project, forward_project, preprocess
 from mlkm_core.simulator import SimConfig, simulate
+from mlkm_core.types import Detections, Layout
 
 
 def test_paper_example():
@@ -26,3 +27,17 @@ def test_constant_speed_targets_collapse_to_their_time_at_the_first_sensor():
         m = d.target == tgt
         assert np.ptp(tp[m]) < 1e-6
         assert np.isclose(tp[m][d.sensor_index[m] == 0][0], d.stamp[m & (d.sensor_index == 0)][0])
+
+
+def test_a_station_at_the_origin_and_negative_stamps_project_as_any_other():
+    # a road is [0, road_length]: a station at 0, stamps measured from an event (negative)
+    layout = Layout(500.0, np.array([0.0, 200.0, 500.0]))
+    speed, at_origin = np.array([20.0, 25.0]), np.array([-30.0, -12.5])
+    stamps = at_origin[:, None] + layout.positions[None, :] / speed[:, None]
+    dets = Detections(
+        np.tile(np.arange(3), 2), stamps.ravel(), np.repeat(speed, 3), np.repeat([0, 1], 3)
+    )
+    back = preprocess(layout, dets)
+    assert np.allclose(back, np.repeat(at_origin, 3))
+    position = layout.positions[dets.sensor_index]
+    assert np.allclose(forward_project(back, dets.velocity, position, 0.0), dets.stamp)

@@ -48,11 +48,10 @@ from mlkm_assoc.validation import (
     POSITION_TOLERANCE,
     REJECT_REASONS,
     DetectionCheck,
-    duplicate_key,
     same_layout,
 )
 from mlkm_core.bounds import Bounds
-from mlkm_core.types import UNKNOWN_LANE, Layout
+from mlkm_core.types import UNKNOWN_LANE, Layout, duplicate_key
 
 __all__ = [
     'NS_PER_S',
@@ -352,7 +351,7 @@ class Assembler:
             self._reject('after_episode_final', sensor_id, stamp_ns, velocity, lane, length)
             return
         ep.last_activity = now
-        key = duplicate_key(stamp_ns, lane, velocity)
+        key = duplicate_key(sensor_id, lane, stamp_ns, velocity)
         if key in ep.seen[s]:
             ep.rejected[s] += 1
             self._reject('duplicate', sensor_id, stamp_ns, velocity, lane, length)

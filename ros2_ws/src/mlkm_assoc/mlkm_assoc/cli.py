@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from mlkm_assoc.cli_run import Progress, absolute, run_batch, run_stream
-from mlkm_core.bounds import Bounds
+from mlkm_core.bounds import OFFLINE, Bounds
 from mlkm_core.csvio import (
     ENCODING,
     LANE,
@@ -150,6 +150,13 @@ def cmd_associate(args: argparse.Namespace) -> int:
     if failure:
         return _error(failure)
     layout, dets = data.layout, data.detections
+    for name, like in data.unknown.items():
+        if like is not None and like not in data.header:
+            print(
+                f'mlkm associate: warning: unknown column {name!r} is not read (copied to the '
+                f'output); did you mean {like}?',
+                file=sys.stderr,
+            )
     rejected = [data.problems[k] for k in sorted(data.problems)]
     if rejected:
         print(
@@ -307,7 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument(
         '--seed', type=_seed, default=0, help='random seed of the method, 0 to 2^32-1 (default: 0)'
     )
-    bounds = Bounds()
+    bounds = OFFLINE
     for flag, value, what in (
         ('--min-speed', bounds.min_speed, 'slowest accepted velocity [m/s]'),
         ('--max-speed', bounds.max_speed, 'fastest accepted velocity [m/s]'),

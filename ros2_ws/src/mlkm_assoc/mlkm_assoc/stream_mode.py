@@ -29,7 +29,7 @@ from mlkm_assoc.stream_state import Answer, TrackerSettings
 from mlkm_assoc.stream_worker import TrackerProcess
 from mlkm_core.bounds import REASONS as BOUNDS_REASONS
 from mlkm_core.bounds import Bounds
-from mlkm_core.types import Layout
+from mlkm_core.types import Layout, duplicate_key
 
 #: Samples kept for the latency and solve-time statistics (the most recent ones) [-].
 STATS_WINDOW = 10_000
@@ -167,7 +167,7 @@ class StreamIngest:
         ):
             reason = 'lane_out_of_range'
         if reason is None:
-            dup = (sensor_id, lane, stamp_ns) if lane >= 0 else (sensor_id, stamp_ns, velocity)
+            dup = duplicate_key(sensor_id, lane, stamp_ns, velocity)
             if dup in self._seen:
                 reason = 'duplicate'
             else:

@@ -3,9 +3,10 @@
 A detection's velocity, stamp and measured length (NaN = not measured) must lie inside the
 physical :class:`~mlkm_core.bounds.Bounds`, its sensor id must be in the layout and its
 position match that sensor's, its lane be -1 (unknown) or, where the layout gives the
-sensor's lane count, below it. :func:`duplicate_key` says which detections of one sensor are
-the same report. The episode bookkeeping (:mod:`mlkm_assoc.assembly`) asks this module and
-counts the reasons.
+sensor's lane count, below it; which detections are the same report (a duplicate) is
+decided by :func:`mlkm_core.types.duplicate_key`, the one rule of the node and the offline
+CLI. The episode bookkeeping (:mod:`mlkm_assoc.assembly`) asks this module and counts the
+reasons.
 """
 
 from __future__ import annotations
@@ -32,13 +33,6 @@ REJECT_REASONS = (
 #: Tolerance between a detection's position and its sensor's layout position [m].
 POSITION_TOLERANCE = 1e-3
 NS_PER_S = 1_000_000_000
-
-
-def duplicate_key(stamp_ns: int, lane: int, velocity: float) -> tuple:
-    """The key under which a sensor's detection counts as a duplicate of an earlier one:
-    (stamp, lane), or, lane unknown, (stamp, lane, velocity), so that two vehicles passing
-    one station in different lanes within the same nanosecond are both kept."""
-    return (stamp_ns, lane) if lane != UNKNOWN_LANE else (stamp_ns, lane, velocity)
 
 
 def same_layout(a: Layout, b: Layout) -> bool:

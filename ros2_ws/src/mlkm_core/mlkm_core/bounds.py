@@ -3,7 +3,9 @@
 A finite but absurd value (a velocity of 1e308 m/s, a stamp of 1e300 s) is not noise: fed to
 an associator it can pull every other detection into one cluster, or make the solver fail.
 The node and the offline CLI both check every detection against one :class:`Bounds` and
-reject what falls outside with one of :data:`REASONS`.
+reject what falls outside with one of :data:`REASONS`. The node's stamps are ROS times
+(``Bounds()``: [0, 2^31 - 1] s); a file's stamps are not (:data:`OFFLINE`: any stamp a clock
+gives, such as seconds relative to an event, negative ones included).
 """
 
 from __future__ import annotations
@@ -98,3 +100,10 @@ class Bounds:
                 '(NaN or 0: not measured)'
             )
         return reason.replace('_', ' ')
+
+
+#: The bounds of a detections file (``mlkm associate``), whose stamps are not ROS times:
+#: +-1e12 s (31,700 years) holds any clock's seconds, relative (negative too) or Unix time,
+#: while a stamp keeps sub-millisecond resolution in float64 and a stamp like 1e300 s, which
+#: would overflow the associators' squared time differences, is refused.
+OFFLINE = Bounds(min_stamp=-1e12, max_stamp=1e12)

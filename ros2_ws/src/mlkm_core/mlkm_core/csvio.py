@@ -3,18 +3,24 @@
 A file has a header with the columns ``sensor_id,position_m,stamp_s,velocity_mps`` and
 optionally ``target_id`` (ground truth, -1 = false alarm), ``lane`` (index from the right,
 -1 or empty = unknown) and ``length_m`` (vehicle length [m], empty or ``nan`` = unknown), in
-any order. Blank lines are ignored.
+any order. Other columns are copied to the output untouched; one whose name is close to a
+known one is likely a typo and is named in the error when a required column is missing
+(``unknown column 'velocty_mps'``), else in ``CsvDetections.unknown``. Blank lines are
+ignored. A file's stamps are not ROS times: negative seconds (relative to an event) are
+fine (the default bounds are :data:`~mlkm_core.bounds.OFFLINE`); positions lie on the road,
+>= 0.
 
 Two kinds of problems:
 
 - The file's structure is wrong (header, field count, encoding, a sensor at two positions,
   two sensors at one position): :class:`InputError` at once, naming the line.
 - A row is invalid (a field that is not a number, a value outside the physical
-  :class:`~mlkm_core.bounds.Bounds`, a duplicate of an earlier row: same sensor, lane and
-  stamp): every such row is collected as a :class:`RowProblem`. By default the file is
-  refused with :class:`InvalidRows` (all of them counted, the first ``MAX_LISTED`` listed);
-  with ``skip_invalid`` the valid rows are associated and the invalid ones are written back
-  with track -1 and their reason, so that nothing is lost.
+  :class:`~mlkm_core.bounds.Bounds`, a duplicate of an earlier row by
+  :func:`~mlkm_core.types.duplicate_key`: same sensor, lane and stamp, and with the lane
+  unknown the same velocity too): every such row is collected as a :class:`RowProblem`.
+  By default the file is refused with :class:`InvalidRows` (all of them counted, the first
+  ``MAX_LISTED`` listed); with ``skip_invalid`` the valid rows are associated and the
+  invalid ones are written back with track -1 and their reason, so that nothing is lost.
 
 The rows themselves are not kept in memory: :func:`write_tracks` reads the input again and
 copies each row verbatim, after checking that the file has not changed in between.
@@ -23,6 +29,7 @@ copies each row verbatim, after checking that the file has not changed in betwee
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import math
 import os
@@ -33,14 +40,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mlkm_core.bounds import Bounds
-from mlkm_core.types import UNKNOWN_LANE, Detections, Layout
+from mlkm_core.bounds import OFFLINE, Bounds
+from mlkm_core.types import UNKNOWN_LANE, Detections, Layout, duplicate_key
 
 REQUIRED = ('sensor_id', 'position_m', 'stamp_s', 'velocity_mps')
 TRUTH = 'target_id'
 LANE = 'lane'
 LENGTH = 'length_m'
 OPTIONAL = (TRUTH, LANE, LENGTH)
+KNOWN = (*REQUIRED, *OPTIONAL)
 TRACK = 'track_id'
 REJECTED = 'rejected'
 #: Reasons of an invalid row beside the physical ones of ``mlkm_core.bounds.REASONS``.
@@ -89,6 +97,8 @@ class CsvDetections:
     row_detection: np.ndarray  # per data row: its index in ``detections``, or -1 if invalid
     problems: dict[int, RowProblem] = field(default_factory=dict)  # data row -> problem
     signature: tuple[int, int] = (0, 0)  # (size, mtime_ns) of the file when read
+    # other columns (copied to the output) -> the known column each resembles, or None
+    unknown: dict[str, str | None] = field(default_factory=dict)
 
     @property
     def n_rows(self) -> int:
@@ -192,8 +202,13 @@ def _read_header(rows: _Rows) -> list[str]:
     header = [h.strip() for h in first]
     missing = [c for c in REQUIRED if c not in header]
     if missing:
+        unknown = _unknown_columns(header)
+        named = ''.join(
+            f'; unknown column {name!r}' + (f' (did you mean {like}?)' if like else '')
+            for name, like in unknown.items()
+        )
         raise InputError(
-            f'{rows.path}: line 1: missing column(s) {", ".join(missing)} '
+            f'{rows.path}: line 1: missing column(s) {", ".join(missing)}{named} '
             f'(header must contain {expected})'
         )
     if len(set(header)) != len(header):
@@ -201,6 +216,16 @@ def _read_header(rows: _Rows) -> list[str]:
     if TRACK in header:
         raise InputError(f'{rows.path}: line 1: input already has a {TRACK} column')
     return header
+
+
+def _unknown_columns(header: list[str]) -> dict[str, str | None]:
+    """Each column that is not a known one -> the known column it resembles (a likely typo:
+    'velocty_mps' -> 'velocity_mps'), or None."""
+    return {
+        name: next(iter(difflib.get_close_matches(name, KNOWN, n=1, cutoff=0.8)), None)
+        for name in header
+        if name not in KNOWN
+    }
 
 
 def read_detections(
@@ -215,7 +240,7 @@ def read_detections(
     at least one row is valid.
     """
     path = Path(path)
-    bounds = bounds or Bounds()
+    bounds = bounds or OFFLINE
     rows = _Rows(path)
     try:
         signature = _signature(path)
@@ -227,6 +252,7 @@ def read_detections(
         i_lane = header.index(LANE) if LANE in header else None
         i_len = header.index(LENGTH) if LENGTH in header else None
         sensor, stamp, velocity, target, lane, length, line_of = [], [], [], [], [], [], []
+        tie: list[float] = []  # the last element of each valid row's duplicate_key
         row_detection: list[int] = []
         problems: dict[int, RowProblem] = {}
         position_of: dict[int, tuple[float, int]] = {}
@@ -241,9 +267,10 @@ def read_detections(
             try:
                 sid = _int(row[i_sid], 'sensor_id', 0)
                 pos = _float(row[i_pos], 'position_m')
-                if not math.isfinite(pos) or pos <= 0:
+                if not math.isfinite(pos) or pos < 0:
                     raise InputError(
-                        f'{path}: line {line}: position_m must be > 0 and finite, got {pos}'
+                        f'{path}: line {line}: position_m must be >= 0 (on the road) and '
+                        f'finite, got {pos}'
                     )
                 first = position_of.setdefault(sid, (pos, line))
                 if first[0] != pos:
@@ -254,6 +281,8 @@ def read_detections(
                 t = _float(row[i_t], 'stamp_s')
                 v = _float(row[i_v], 'velocity_mps')
                 reason = bounds.refuse(t, v)
+                if reason == 'stamp_out_of_range' and not math.isfinite(t):
+                    raise _Bad(reason, f'stamp_s must be finite, got {row[i_t].strip()}')
                 if reason == 'stamp_out_of_range':
                     raise _Bad(
                         reason,
@@ -276,6 +305,7 @@ def read_detections(
                 row_detection.append(-1)
                 continue
             row_detection.append(len(sensor))
+            tie.append(duplicate_key(sid, ln, t, v)[3])
             sensor.append(sid)
             stamp.append(t)
             velocity.append(v)
@@ -291,11 +321,15 @@ def read_detections(
         raise InputError(f'{path}: line 2: no detections after the header')
     row_of = np.flatnonzero(np.array(row_detection) >= 0)
     det_of_row = np.array(row_detection, np.int64)
-    for k, first_k in _duplicates(np.array(sensor, np.int64), np.array(lane), np.array(stamp)):
+    dups = _duplicates(np.array(sensor, np.int64), np.array(lane), np.array(stamp), np.array(tie))
+    for k, first_k in dups:
+        same = (
+            'sensor_id, stamp_s and velocity_mps, lane unknown'
+            if lane[k] == UNKNOWN_LANE
+            else 'sensor_id, lane and stamp_s'
+        )
         problems[int(row_of[k])] = RowProblem(
-            line_of[k],
-            'duplicate',
-            f'duplicate of line {line_of[first_k]} (same sensor_id, lane and stamp_s)',
+            line_of[k], 'duplicate', f'duplicate of line {line_of[first_k]} (same {same})'
         )
         det_of_row[row_of[k]] = -1
     keep = np.flatnonzero(det_of_row >= 0)
@@ -313,16 +347,21 @@ def read_detections(
         np.array(lane, np.int64)[valid_dets] if i_lane is not None else None,
         np.array(length)[valid_dets] if i_len is not None else None,
     )
-    return CsvDetections(path, header, layout, dets, det_of_row, problems, signature)
+    return CsvDetections(
+        path, header, layout, dets, det_of_row, problems, signature, _unknown_columns(header)
+    )
 
 
-def _duplicates(sensor: np.ndarray, lane: np.ndarray, stamp: np.ndarray) -> list[tuple[int, int]]:
-    """(index, index of its first occurrence) of every repeated (sensor, lane, stamp)."""
+def _duplicates(
+    sensor: np.ndarray, lane: np.ndarray, stamp: np.ndarray, tie: np.ndarray
+) -> list[tuple[int, int]]:
+    """(index, index of its first occurrence) of every repeated
+    :func:`~mlkm_core.types.duplicate_key` (sensor, lane, stamp, tie), grouped in arrays."""
     if sensor.size < 2:
         return []
-    order = np.lexsort((np.arange(sensor.size), stamp, lane, sensor))
-    s, ln, t = sensor[order], lane[order], stamp[order]
-    same = (s[1:] == s[:-1]) & (ln[1:] == ln[:-1]) & (t[1:] == t[:-1])
+    order = np.lexsort((np.arange(sensor.size), tie, stamp, lane, sensor))
+    s, ln, t, x = sensor[order], lane[order], stamp[order], tie[order]
+    same = (s[1:] == s[:-1]) & (ln[1:] == ln[:-1]) & (t[1:] == t[:-1]) & (x[1:] == x[:-1])
     if not same.any():
         return []
     starts = np.concatenate([[True], ~same])

@@ -18,12 +18,28 @@ FALSE_ALARM = -1
 UNKNOWN_LANE = -1
 
 
+def duplicate_key(sensor_id: int, lane: int, stamp: float, velocity: float) -> tuple:
+    """The identity of one report: two detections with equal keys are the same report
+    received twice (the second is a duplicate).
+
+    A report is (sensor, lane, stamp) where the lane is known. Where it is not
+    (``UNKNOWN_LANE``), the velocity is part of the key, so that two vehicles crossing one
+    station at the same instant in different lanes, at different speeds, are both kept.
+    ``stamp`` is compared exactly, in whatever unit the caller uses (ns in the node, s in a
+    CSV). The node and the offline CLI both decide duplicates with this one function."""
+    if lane == UNKNOWN_LANE:
+        return (sensor_id, lane, stamp, velocity)
+    return (sensor_id, lane, stamp, 0.0)
+
+
 @dataclass(frozen=True)
 class Layout:
-    """A road of length ``road_length`` [m] with sensors at strictly increasing positions."""
+    """A road of length ``road_length`` [m] with sensors at strictly increasing positions.
+
+    The road is [0, road_length]: a station may stand at its origin (0) or at its end."""
 
     road_length: float
-    positions: np.ndarray  # [m], shape (n_sensors,), strictly increasing, inside (0, D)
+    positions: np.ndarray  # [m], shape (n_sensors,), strictly increasing, on [0, D]
     sensor_ids: np.ndarray = field(default=None)  # uint ids, shape (n_sensors,)
     names: tuple[str, ...] = field(default=())
 
@@ -35,8 +51,8 @@ class Layout:
             raise ValueError('sensor positions must be finite')
         if np.any(np.diff(pos) <= 0):
             raise ValueError('sensor positions must be unique and strictly increasing')
-        if not (self.road_length > 0 and pos[0] > 0 and pos[-1] < self.road_length):
-            raise ValueError('sensor positions must lie inside (0, road_length)')
+        if not (self.road_length > 0 and pos[0] >= 0 and pos[-1] <= self.road_length):
+            raise ValueError('sensor positions must lie on the road [0, road_length]')
         ids = (
             np.arange(pos.size, dtype=np.int64)
             if self.sensor_ids is None

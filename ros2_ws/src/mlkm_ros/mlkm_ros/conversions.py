@@ -112,8 +112,8 @@ def layout_to_msg(
 
 def layout_from_msg(msg: SensorLayout) -> Layout:
     """Raises ValueError with the reason when the message is not a valid layout: a finite
-    positive road length, at least one sensor, finite strictly increasing positions inside
-    (0, road_length), unique ids and unique non-empty names; lane_counts empty or one count
+    positive road length, at least one sensor, finite strictly increasing positions on the
+    road [0, road_length], unique ids and unique non-empty names; lane_counts empty or one count
     >= 1 per sensor; entry and exit positions finite and inside (0, road_length)."""
     n = len(msg.positions)
     if len(msg.sensor_ids) != n or len(msg.sensor_names) != n:
