@@ -72,6 +72,14 @@ detections pushed meanwhile whose tracks the solve changed are linked again at o
 ``flush`` waits for them. Commits come later in wall time, never different: without an
 executor each solve runs inside the ``push`` whose stamp made its boundary due.
 
+Overload. When the solves cannot keep up, the detections waiting for their commit pile up and
+each window grows. Beyond ``max_uncommitted`` of them the tracker drops the solve in flight
+and commits every due boundary at once on the tracks the detections are in (their immediate
+links, revised by the solves applied before), ends the tracks that are over and submits no
+solve while the dropped one may still run: the backlog and the commit lag stay bounded, and
+the committed labels are the immediate association's instead of the window's (``overloaded``
+until a solve is applied again; counters ``skipped_solves`` and ``forced_commits``).
+
 Status: TENTATIVE while a track holds fewer than ``confirm_count`` detections, CONFIRMED from
 then on (a revision that takes detections away can bring an uncommitted track back to
 TENTATIVE), FINAL at its end. A track that lost all its detections to a revision is reported

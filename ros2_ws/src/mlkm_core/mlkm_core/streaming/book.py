@@ -26,6 +26,8 @@ COUNTERS = (
     'false_alarms',
     'revised',
     'final_tracks',
+    'skipped_solves',
+    'forced_commits',
 )
 
 

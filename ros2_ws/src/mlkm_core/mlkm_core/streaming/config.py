@@ -53,6 +53,11 @@ class StreamConfig:
     segment_size: int = 5  # K of the MLKM methods (sensors per segment)
     seed: int = 0  # random_state of the K-means methods
     search_budget: int = 500_000  # multiframe: candidates scored per window solve and start
+    # [-] once more detections than this wait for their commit (window solves beside the
+    # stream that cannot keep up), the due boundaries are committed on the immediate links
+    # without a solve and the solve in flight is dropped (``StreamTracker.overloaded``);
+    # 0 = no bound. Solved inline, the backlog stays near a lag of traffic.
+    max_uncommitted: int = 0
 
     def __post_init__(self) -> None:
         from mlkm_core.associators import available_methods
@@ -78,6 +83,7 @@ class StreamConfig:
             (self.segment_size >= 1, 'segment_size must be >= 1'),
             (0 <= self.seed < 2**32, 'seed must be in [0, 2^32)'),
             (self.search_budget >= 0, 'search_budget must be >= 0'),
+            (self.max_uncommitted >= 0, 'max_uncommitted must be >= 0'),
         )
         for ok, message in checks:
             if not ok:

@@ -69,6 +69,10 @@ class StreamTracker(Revisions):
         self.config = config
         self._executor = executor
         self._inflight: tuple[_Prepared, Any] | None = None
+        # solves dropped while overloaded that the executor may still be running: no new one
+        # is submitted behind them, so the executor's queue never grows
+        self._dropped: list[Any] = []
+        self._overloaded = False
         self._since: list[int] = []  # keys pushed since the in-flight window was snapshotted
         self._late_before = -math.inf  # pushes stamped before it are late
         pos = layout.positions
@@ -135,6 +139,8 @@ class StreamTracker(Revisions):
         out['working_set'] = self.working_set
         out['open_tracks'] = len(self._tracks)
         out['revision_rate'] = out['revised'] / out['committed'] if out['committed'] else 0.0
+        out['uncommitted'] = len(self._pending)
+        out['overloaded'] = int(self._overloaded)
         return out
 
     def push(
@@ -190,13 +196,23 @@ class StreamTracker(Revisions):
         """A window solve is in flight on the executor."""
         return self._inflight is not None
 
+    @property
+    def overloaded(self) -> bool:
+        """The last boundaries were committed on the immediate links, without a window solve:
+        more than ``max_uncommitted`` detections waited for their commit. Cleared by the next
+        solve applied."""
+        return self._overloaded
+
     def flush(self) -> StreamUpdate:
         """Commit everything and finalise every track (the road fell quiet, or input ended);
         waits for the solves in flight."""
         self._begin()
         self._advance(wait=True)
-        if self._dets:
+        if self._over_budget():
+            self._commit_now(None)
+        elif self._dets:
             self._run(self._prepare(None), wait=True)
+        self._overloaded = False
         self._committed_until = max(self._committed_until, self._newest)
         if math.isfinite(self._newest):
             self._next_k = math.floor(self._newest / self.config.solve_interval) + 1
@@ -294,21 +310,37 @@ class StreamTracker(Revisions):
         Boundaries whose window is empty only end tracks; a run of them is skipped to the
         first one with a window (or the last passed), ending first the tracks that the
         skipped boundaries would have ended, so the outcome is that of solving each.
+
+        Over ``max_uncommitted`` detections waiting for their commit, the solve in flight is
+        dropped and every due boundary is committed at once on the immediate links
+        (``_commit_now``); no solve is submitted while a dropped one may still be running.
         """
         c = self.config
         while True:
             if self._inflight is not None:
                 prepared, future = self._inflight
-                if not (wait or future.done()):
+                if self._over_budget():
+                    self._inflight = None
+                    self._dropped.append(future)
+                    self._since = []
+                    self._next_k = prepared.k  # due again: committed below without it
+                elif not (wait or future.done()):
                     return
-                self._inflight = None
-                self._finish(prepared, self._result(prepared, future))
+                else:
+                    self._inflight = None
+                    self._finish(prepared, self._result(prepared, future))
             if self._next_k is None:
                 return
             last_k = math.floor((self._newest - c.reorder_tolerance) / c.solve_interval)
             if self._next_k > last_k:
                 return
+            if self._over_budget():
+                self._commit_now(last_k)
+                continue
             if self.deferring and not wait and last_k - self._next_k < MAX_DEFERRED:
+                return
+            self._dropped = [f for f in self._dropped if not f.done()]
+            if self._dropped and not wait:
                 return
             oldest = min((self._dets[k].stamp for k in self._pending), default=math.inf)
             first_k = math.floor(oldest / c.solve_interval) + 1 if oldest < math.inf else last_k
@@ -321,6 +353,32 @@ class StreamTracker(Revisions):
             prepared = self._prepare(self._next_k)
             self._next_k += 1
             self._run(prepared, wait)
+
+    def _over_budget(self) -> bool:
+        return 0 < self.config.max_uncommitted < len(self._pending)
+
+    def _commit_now(self, k: int | None) -> None:
+        """Commit the boundaries up to k (None: everything, at a flush) on the tracks the
+        detections are in now (their immediate links), without a window solve: what the
+        solve at k would commit, a detection alone as a false alarm, then end the tracks that
+        are over."""
+        c = self.config
+        bound = math.inf if k is None else k * c.solve_interval
+        cutoff = math.inf if k is None else bound - c.lag
+        window = {key for key in self._pending if self._dets[key].stamp < bound}
+        due = sorted(
+            (self._dets[key] for key in window if self._dets[key].stamp < cutoff), key=canon
+        )
+        self._commit(due, window)
+        self._stats['forced_commits'] += len(due)
+        self._stats['skipped_solves'] += 1 if k is None else k - self._next_k + 1
+        self._solved = True
+        if k is not None:
+            self._late_before = max(self._late_before, cutoff)
+            self._committed_until = max(self._committed_until, cutoff)
+            self._next_k = k + 1
+        self._finalize(bound, k is None)
+        self._overloaded = True
 
     def _run(self, prepared: _Prepared, wait: bool) -> None:
         """Solve a snapshotted window: at once without an executor (or for an empty window),
@@ -428,6 +486,7 @@ class StreamTracker(Revisions):
         changed = set(self._changed)
         if solution is not None:
             self._stats['solves'] += 1
+            self._overloaded = False
             self._stats['degraded'] += solution.degraded
             self._stats['failed_solves'] += solution.failed
             if solution.params is not None:
