@@ -64,7 +64,8 @@ def inspect_bag(bag: Path) -> tuple[int, int, dict, list[str]]:
                 ended.add(info.episode_id)
         elif message.topic == '/mlkm/score':
             score = _recorded_score(message.data)
-            recorded[score.episode_id] = score
+            if score.total > 0:  # an older scorer published unscorable ones as NaN
+                recorded[score.episode_id] = score
     return len(ended), infos, recorded, bag_damage(reader)
 
 
@@ -92,7 +93,13 @@ def main(argv: list[str] | None = None) -> int:
         default=0.0,
         help='playback rate; 0 = as fast as the nodes take it (default)',
     )
-    p.add_argument('--timeout', type=float, default=120.0, help='give up after [s] (120)')
+    p.add_argument(
+        '--timeout',
+        type=float,
+        default=120.0,
+        help='give up this long after the player started playing [s] (120); the nodes and the '
+        'player may take as long as they need to come up',
+    )
     p.add_argument(
         '--lag',
         type=float,
@@ -135,29 +142,17 @@ def main(argv: list[str] | None = None) -> int:
         collector = ScoreCollector(domain_id)
         graph = Graph(domain_id, log_dir)
         try:
-            start_association(graph, collector, method)
-            # The player waits until every volatile topic it plays has a subscriber: the
-            # association node subscribes to sensor topics as soon as they appear.
-            graph.start(
-                'bag_player',
-                'rosbag_mcap',
-                'bag_player',
-                '--ros-args',
-                '-p',
-                f'bag:={bag}',
-                '-p',
-                f'rate:={args.rate}',
-                '-p',
-                f'include_regex:={PLAY_REGEX}',
-                '-p',
-                'wait_for_subscribers:=1',
-                '-p',
-                'linger:=-1.0',
-            )
+            # No time limit on the start: a busy machine only makes it slower; a node that
+            # fails ends the wait.
+            start_association(graph, collector, method, timeout=math.inf)
+            # The player waits, without a time limit, until every volatile topic it plays has
+            # a subscriber: the association node subscribes to the sensor topics once it
+            # learned the layout, the scorer to ground truth.
+            graph.start('bag_player', 'rosbag_mcap', 'bag_player', *_player_args(bag, args))
             why = collector.spin_until(
                 lambda: len(collector.scores) >= episodes,
-                timeout=args.timeout,
-                abort=lambda: graph.failed(ignore=('bag_player',)) or _player_failed(graph),
+                timeout=math.inf,
+                abort=_abort_after_playing(graph, args.timeout),
             )
             if why:
                 raise RuntimeError(f'not every episode was scored: {why}')
@@ -236,8 +231,8 @@ def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: lis
                 lambda: (
                     'playback done' in graph.procs['bag_player'].output() and all_scored(collector)
                 ),
-                timeout=args.timeout + args.lag,
-                abort=lambda: graph.failed(ignore=('bag_player',)) or _player_failed(graph),
+                timeout=math.inf,
+                abort=_abort_after_playing(graph, args.timeout + args.lag),
             )
             if why:
                 raise RuntimeError(
@@ -308,8 +303,28 @@ def _player_args(bag: Path, args: argparse.Namespace) -> list[str]:
         '-p',
         'wait_for_subscribers:=1',
         '-p',
+        'wait_timeout:=0.0',  # no limit: never play to nobody
+        '-p',
         'linger:=-1.0',
     ]
+
+
+def _abort_after_playing(graph: Graph, timeout: float):
+    """``abort`` for ``spin_until``: why to stop, once a node failed or ``timeout`` seconds
+    passed since the player started playing (its 'playing' log line), never before."""
+    started: list[float] = []
+
+    def why() -> str | None:
+        failed = graph.failed(ignore=('bag_player',)) or _player_failed(graph)
+        if failed:
+            return failed
+        if not started and 'playing ' in graph.procs['bag_player'].output():
+            started.append(time.monotonic())
+        if started and time.monotonic() - started[0] > timeout:
+            return f'timed out {timeout:g} s after the player started playing'
+        return None
+
+    return why
 
 
 def _seconds(t) -> float:

@@ -23,6 +23,8 @@ Fixtures
                         teardown, even when the test fails: SIGINT to the group, then SIGTERM,
                         then SIGKILL. ``.stop()`` does that earlier and returns the exit code.
                         Log tails are printed at teardown (pytest shows them on failure).
+                        The processes die with this pytest run however it ends (SIGTERM,
+                        SIGHUP, Ctrl-C, SIGKILL): see ``_end_children_with_the_run``.
 ``rclpy_context``    -> a private, initialised ``rclpy.context.Context`` on ``ros_domain_id``
                         (loopback only, no rclpy signal handlers), shut down at teardown. Pass
                         it to ``Node(..., context=ctx)`` and ``SingleThreadedExecutor(
@@ -35,7 +37,9 @@ Markers (pytest.ini): ``ros`` (starts DDS participants), ``slow``.
 
 from __future__ import annotations
 
+import atexit
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -55,6 +59,7 @@ def pytest_configure(config: pytest.Config) -> None:
         or os.environ.get('MLKM_TEST_NO_REEXEC')
         or os.environ.get('PYTEST_XDIST_WORKER')
     ):
+        _end_children_with_the_run()
         return
     script = f'source {REPO_ROOT / "env.sh"} >/dev/null && env -0'
     try:
@@ -74,6 +79,49 @@ def pytest_configure(config: pytest.Config) -> None:
     sys.stdout.flush()
     sys.stderr.flush()
     os.execve(str(venv_python), [str(venv_python), *sys.orig_argv[1:]], env)
+
+
+def _end_children_with_the_run() -> None:
+    """However this run ends, the processes its tests started end with it. A Proc (the
+    ``ros_process`` fixture, the launcher of demo and replay) dies with this process by
+    itself (PR_SET_PDEATHSIG); SIGTERM or SIGHUP (a time limit, a closed terminal) and the
+    exit also kill every process group still running and every direct child, whose own Procs
+    then die with them. Ctrl-C tears the fixtures down as usual, then the exit does this."""
+    from mlkm_experiments.launch import kill_all  # after the env.sh re-exec above
+
+    runner = os.getpid()
+
+    def end_all() -> None:
+        if os.getpid() != runner:  # a forked child of a test: the groups are not its own
+            return
+        kill_all()
+        for pid in _children(os.getpid()):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+    def on_signal(signum: int, _frame: object) -> None:
+        end_all()  # in a forked child: nothing, then the signal's default action
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)  # end as that signal asks
+
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, on_signal)
+    atexit.register(end_all)
+
+
+def _children(pid: int) -> list[int]:
+    """Direct children of ``pid`` (Linux /proc)."""
+    out = []
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
 
 
 @pytest.fixture(scope='session')

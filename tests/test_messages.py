@@ -111,7 +111,8 @@ def filled(name: str):
             final=True,
             segments_done=4,
             segments_total=4,
-            tracks=[track(0), track(U32_MAX)],
+            # a stream id of a run started now (us since the Unix epoch), and the largest id
+            tracks=[track(1_764_000_000_000_000 + 7), track(2**64 - 1)],
             unassigned_sensor_ids=[8, 9],
             unassigned_stamps=[Time(sec=1), Time(sec=2)],
             unassigned_velocities=[33.0, 70.5],
@@ -119,6 +120,7 @@ def filled(name: str):
             unassigned_lengths=[9.25, 7.5],
             committed_until=Time(sec=3, nanosec=7),
             solve_time=0.0125,
+            run=1_764_000_000_000_000,
         )
     if name == 'AssociationScore':
         return cls(

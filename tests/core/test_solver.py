@@ -113,3 +113,47 @@ def test_solver_module_is_ros_free() -> None:
     )
     proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_track_ids_of_partials_are_kept_or_retired_in_the_final():
+    """Episode 0 of the demo (50 targets, 20 sensors, seed 0): MLKM links two clusters of the
+    first segment into one track after the second, so ids of a partial vanish. Every id a
+    partial carried is in the final or named retired there, and no retired id is reused."""
+    from mlkm_core.simulator import SimConfig, simulate_episodes
+
+    data = simulate_episodes(SimConfig(), 0, 1)[0]
+    layout, det = data.layout, data.detections
+    origin = int(np.ceil(-det.stamp.min())) * S  # stamps >= 0, as sensor_sim shifts them
+    jobs: list[Job] = []
+    a = Assembler(AssociationConfig(method='mlkm', segment_size=5), jobs.append)
+    a.set_layout(layout, 0.0)
+    end = origin + int((det.stamp.max() + 1.0) * S)
+    a.add_episode(0, 50, 0, end, None, 0.0)
+    for i in np.argsort(det.stamp, kind='stable'):
+        s = int(det.sensor_index[i])
+        a.add_detection(
+            int(layout.sensor_ids[s]), origin + int(det.stamp[i] * S), float(layout.positions[s]),
+            float(det.velocity[i]), 0.0,
+        )  # fmt: skip
+    counts = {int(k): int((det.sensor_index == s).sum()) for s, k in enumerate(layout.sensor_ids)}
+    a.add_episode(0, 50, 0, end, counts, 0.0)
+    solver = Solver()
+    results = [solver.run(job) for job in jobs]
+    assert [r.final for r in results] == [False] * 4 + [True]
+    seen: set[int] = set()
+    for r in results:
+        ids = set(np.unique(r.labels[r.labels >= 0]).tolist())
+        assert set(r.retired) == seen - ids
+        assert not ids & set(r.retired)
+        seen |= ids
+    final = results[-1]
+    assert final.retired, 'this episode is expected to retire ids (else pick another)'
+    partial_ids = {int(x) for r in results[:-1] for x in r.labels if x >= 0}
+    final_ids = set(final.labels[final.labels >= 0].tolist())
+    assert partial_ids <= final_ids | set(final.retired)
+    # a fresh id is never one that was retired before
+    for earlier, later in zip(results, results[1:]):
+        fresh = set(later.labels[later.labels >= 0].tolist()) - set(
+            earlier.labels[earlier.labels >= 0].tolist()
+        )
+        assert not fresh & set(earlier.retired)

@@ -160,3 +160,31 @@ def test_length_bounds() -> None:
     with pytest.raises(ValueError, match='min_length < max_length'):
         Bounds(min_length=5.0, max_length=4.0)
     assert SensorLayout  # the message type is importable alongside
+
+
+def test_retired_track_ids_are_empty_final_tracks() -> None:
+    """An id an earlier message of the episode carried, now without detections, comes as an
+    empty FINAL track; the detections and their labels are those of the other tracks."""
+    msg = conv.tracks_to_msg(
+        episode_id=4,
+        method='mlkm',
+        final=False,
+        segments_done=2,
+        segments_total=3,
+        sensor_ids=[7, 8],
+        stamps_ns=[100, 200],
+        velocities=[30.0, 30.0],
+        positions=[500.0, 1500.0],
+        labels=[0, 0],
+        solve_time=0.5,
+        stamp_ns=9,
+        retired=(3, 5),
+    )
+    back = cdr(msg)
+    by_id = {t.track_id: t for t in back.tracks}
+    assert sorted(by_id) == [0, 3, 5]
+    assert by_id[0].status == Track.STATUS_CONFIRMED and len(by_id[0].sensor_ids) == 2
+    for i in (3, 5):
+        assert by_id[i].status == Track.STATUS_FINAL and len(by_id[i].sensor_ids) == 0
+    ids, _, _, labels = conv.tracks_from_msg(back)
+    assert ids.tolist() == [7, 8] and labels.tolist() == [0, 0]

@@ -21,8 +21,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'association_node = mlkm_assoc.association_node:main',
-            'scorer_node = mlkm_assoc.scorer_node:main',
+            'association_node = mlkm_assoc.entry:association_node',
+            'scorer_node = mlkm_assoc.entry:scorer_node',
             'mlkm = mlkm_assoc.cli:main',
         ],
     },

@@ -21,8 +21,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'sensor_sim = road_sensors.sensor_sim:main',
-            'sumo_sensors = road_sensors.sumo_sensors:main',
+            'sensor_sim = road_sensors.entry:sensor_sim',
+            'sumo_sensors = road_sensors.entry:sumo_sensors',
         ],
     },
 )

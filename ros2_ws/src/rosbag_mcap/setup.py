@@ -21,8 +21,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'bag_recorder = rosbag_mcap.recorder:main',
-            'bag_player = rosbag_mcap.player:main',
+            'bag_recorder = rosbag_mcap.entry:bag_recorder',
+            'bag_player = rosbag_mcap.entry:bag_player',
             'bag_reindex = rosbag_mcap.reindex:main',
         ],
     },

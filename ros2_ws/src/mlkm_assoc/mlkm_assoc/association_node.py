@@ -21,19 +21,25 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.subscription import Subscription
 
 from mlkm_assoc.assembly import REJECT_REASONS, Assembler, AssociationConfig, Job
-from mlkm_assoc.association_params import BOUND_NAMES, NODE_PARAMS, SPECS, STREAM_PARAMS
+from mlkm_assoc.association_params import (
+    BOUND_NAMES,
+    NODE_PARAMS,
+    SPECS,
+    STREAM_PARAMS,
+    stream_associator,
+)
 from mlkm_assoc.encoding import Update, encode
 from mlkm_assoc.modes import ModeSwitch
 from mlkm_assoc.solver import SolverProcess
+from mlkm_assoc.stream_worker import prestart
 from mlkm_core.associators.base import AssociatorConfig
 from mlkm_ros import conversions as conv
-from mlkm_ros import qos
+from mlkm_ros import lifecycle, qos
 from mlkm_ros.endpoints import PublisherCheck, no_events
 from mlkm_ros.params import ParameterError, declare_parameters
 from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
@@ -56,7 +62,12 @@ class AssociationNode(Node):
         self._diag_period: float = values.pop('diagnostics_period')
         self._diag_window: float = values.pop('diagnostics_window')
         self._warn_fraction: float = values.pop('warn_rejected_fraction')
-        stream_values = [values.pop(name) for name in STREAM_PARAMS]
+        mode, lag, stream_method = (values.pop(name) for name in STREAM_PARAMS)
+        max_uncommitted: int = values.pop('max_uncommitted')
+        # the values given on the command line or in a params file (rclpy keeps them as the
+        # node's parameter overrides)
+        given = set(getattr(self, '_parameter_overrides', {}))
+        stream_method = stream_associator(values['method'], stream_method, given)
         try:
             self._config: AssociationConfig = AssociationConfig(**values)
             self._config.bounds()
@@ -99,10 +110,12 @@ class AssociationNode(Node):
         self._diag_timer = self.create_timer(self._diag_period, self.publish_diagnostics)
         self._worker = threading.Thread(target=self._work, name='publisher', daemon=True)
         self._worker.start()
-        self._modes = ModeSwitch(self, self._tracks_pub, *stream_values)
+        self._modes = ModeSwitch(
+            self, self._tracks_pub, mode, lag, stream_method, max_uncommitted=max_uncommitted
+        )
         self.get_logger().info(
-            f'method {self._config.method}, segment_size {self._config.segment_size}; '
-            'waiting for the sensor layout'
+            f'method {self._config.method}, segment_size {self._config.segment_size}, '
+            f'stream mode method {stream_method}; waiting for the sensor layout'
         )
 
     # --- parameters -----------------------------------------------------------------------
@@ -335,7 +348,8 @@ class AssociationNode(Node):
 
     def diagnostics_level(self, values: dict[str, object], now: float) -> tuple[int, str]:
         """(level, reason) judged on the last ``diagnostics_window`` seconds: ERROR after a
-        solver error, WARN when too large a fraction of the detections was rejected."""
+        solver error, WARN while stream mode commits without window solves (overloaded) or
+        when too large a fraction of the detections was rejected."""
         sample = (now, int(values['received']), int(values['rejected']), self._solver_errors)
         history = self._history
         history.append(sample)
@@ -346,6 +360,13 @@ class AssociationNode(Node):
             received0 = rejected0 = errors0 = 0
         if self._solver_errors > errors0:
             return DiagnosticStatus.ERROR[0], f'solver error: {self._last_error}'
+        if int(values.get('stream.tracker.overloaded', 0)):
+            return (
+                DiagnosticStatus.WARN[0],
+                'stream: the window solves cannot keep up, links are committed as first made '
+                f'({values["stream.tracker.skipped_solves"]} solves skipped, '
+                f'{values["stream.tracker.forced_commits"]} detections committed so)',
+            )
         received, rejected = sample[1] - received0, sample[2] - rejected0
         if rejected and rejected > self._warn_fraction * max(received, 1):
             return (
@@ -392,20 +413,24 @@ def _quantile(values: list[float], q: float) -> float:
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    try:
-        node = AssociationNode()
-    except ParameterError as exc:
-        print(f'association_node: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle): exit 0, no traceback
+    with lifecycle.stop_signals():
+        # stream mode's processes, forked while no ROS thread runs (mlkm_assoc.stream_worker)
+        prestart()
+        lifecycle.init_rclpy(args)
+        try:
+            node = AssociationNode()
+        except ParameterError as exc:
+            print(f'association_node: {exc}', file=sys.stderr)
+            rclpy.try_shutdown()
+            return 2
+        try:
+            lifecycle.spin(node)
+        finally:
+            if lifecycle.STOP.requested:
+                lifecycle.end_helpers()  # Ctrl-C: the solves in hand are not waited for
+            node.destroy_node()
+            rclpy.try_shutdown()
     return 0
 
 

@@ -17,6 +17,7 @@ NODE_PARAMS = (
     'diagnostics_period',
     'diagnostics_window',
     'warn_rejected_fraction',
+    'max_uncommitted',
     *STREAM_PARAMS,
 )
 _BOUNDS = Bounds()
@@ -30,6 +31,15 @@ def _check_method(value: str) -> str | None:
     return f'unknown method {value!r}; choose one of {", ".join(methods)}'
 
 
+def stream_associator(method: str, stream_method: str, given: set[str]) -> str:
+    """The associator of stream mode's window solves: ``stream_method`` when it was given
+    (on the command line or in a params file), else ``method`` when that was given (so a
+    method asked for is never ignored), else ``stream_method``'s default."""
+    if 'stream_method' not in given and 'method' in given:
+        return method
+    return stream_method
+
+
 def _check_mode(value: str) -> str | None:
     if value in ('auto', 'episodes', 'stream'):
         return None
@@ -41,7 +51,7 @@ SPECS = [
         'method',
         'mlkm',
         'associator from the core, any of mlkm_core available_methods() (applies from '
-        'the next episode) [-]',
+        'the next episode); also of stream mode when given without stream_method [-]',
         check=_check_method,
         constraints='one of: ' + ', '.join(available_methods()),
     ),
@@ -158,9 +168,20 @@ SPECS = [
         'stream_method',
         'multiframe',
         "stream mode: associator of the tracker's window solves, any of mlkm_core "
-        'available_methods() [-]',
+        'available_methods(); when not given, the method given, else this default [-]',
         check=_check_method,
         constraints='one of: ' + ', '.join(available_methods()),
+        read_only=True,
+    ),
+    ParamSpec(
+        'max_uncommitted',
+        100_000,
+        'stream mode: most detections waiting for their commit; beyond, when the window '
+        'solves cannot keep up, the due links are committed as first made, without a solve, '
+        'until the backlog is taken (a bound on memory; WARN on /diagnostics); 0 = no bound '
+        '[detections]',
+        0,
+        100_000_000,
         read_only=True,
     ),
     ParamSpec(

@@ -53,6 +53,7 @@ def encode(result: Result) -> Update:
         stamp_ns=time.time_ns(),
         lanes=result.lanes,
         lengths=result.lengths,
+        retired=result.retired,
     )
     labels = result.labels
     return Update(

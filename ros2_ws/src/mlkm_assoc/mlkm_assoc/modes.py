@@ -6,7 +6,10 @@ publisher. So ``auto`` is decided at the first detection: episodes when /road/ep
 publisher (or an EpisodeInfo arrived), stream otherwise. It is checked again every tick: an
 episode publisher appearing (or an EpisodeInfo) switches to episodes at once, after the
 stream was flushed (its tracks become FINAL); the publisher gone and every episode finished
-switches back to stream.
+switches back to stream. Detections that arrive in ``auto`` before any layout, while no
+episode publisher is known, are held here (up to ``max_buffered``) and decide nothing: the
+mode is decided once the layout is known or an episode publisher appears (at the next
+detection or tick), and they go to that mode in arrival order.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from rclpy.publisher import Publisher
 
 from mlkm_assoc.stream_mode import REJECT_REASONS as STREAM_REASONS
 from mlkm_assoc.stream_mode import StreamMode, StreamSettings
+from mlkm_assoc.stream_worker import discard_prestarted
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
 from road_sensor_msgs.msg import Detection, SensorLayout
@@ -28,40 +32,42 @@ MODES = ('auto', 'episodes', 'stream')
 #: Period of the clock ticks stream mode's reorder buffer runs on while nothing arrives [s].
 CLOCK_PERIOD = 0.02
 EPISODES, STREAM = 'episodes', 'stream'
-#: Longest wait for the tracker process at the start of a node in stream mode [s].
-READY_TIMEOUT = 60.0
 
 
 class ModeSwitch:
     """Owns stream mode (created when first needed) and tells the node where input goes."""
 
     def __init__(
-        self, node: Node, publisher: Publisher, mode: str, lag: float, method: str
+        self,
+        node: Node,
+        publisher: Publisher,
+        mode: str,
+        lag: float,
+        method: str,
+        max_uncommitted: int = 0,
     ) -> None:
         self._node = node
         self._publisher = publisher
         self.setting = mode
         self._lag = lag
         self._method = method
+        self._max_uncommitted = max_uncommitted
         self._episode_topic = node.resolve_topic_name(qos.EPISODE_TOPIC)
         self.mode: str | None = None if mode == 'auto' else mode
         self._layout: tuple | None = None
         self.stream: StreamMode | None = None
         self.switches = 0
+        # auto, before any layout: (sensor id, stamp ns, position, velocity, lane, length,
+        # arrival time) of the detections held until the layout decides the mode
+        self._early: list[tuple[int, int, float, float, int, float, float]] = []
+        self.early_held = 0  # detections held so far
+        self.early_refused = 0  # detections refused because the hold was full
         if self.mode == STREAM:
-            # subscribe only once the tracker process is warm: detections arriving while it
-            # starts (a second or two of imports) would all wait for it
+            # the tracker process starts now; the node subscribes at once, and detections
+            # queue for the process until it is ready (mlkm_assoc.stream_worker)
             self._start_stream()
-            t0 = time.monotonic()
-            if self.stream.wait_ready(READY_TIMEOUT):
-                node.get_logger().info(
-                    f'stream mode: tracker ready after {time.monotonic() - t0:.1f} s'
-                )
-            else:
-                node.get_logger().warning(
-                    f'stream mode: the tracker process is not ready after {READY_TIMEOUT:g} s;'
-                    ' detections wait for it'
-                )
+        elif self.mode == EPISODES:
+            discard_prestarted()
 
     # --- inputs from the node -------------------------------------------------------------
     def layout(self, msg: SensorLayout, layout, lane_counts) -> None:
@@ -77,14 +83,10 @@ class ModeSwitch:
             self._switch(EPISODES, 'an EpisodeInfo arrived')
 
     def take_detection(self, msg: Detection) -> bool:
-        """True when stream mode took the detection; False: episodes mode's."""
-        if self.mode is None:
-            self._decide()
-        if self.mode != STREAM:
-            return False
-        self.stream.ingest.bounds = self._node.assembler.bounds  # live parameter changes
+        """True when stream mode took the detection (or it is held until the mode is
+        decided); False: episodes mode's."""
         stamp = msg.header.stamp
-        self.stream.add(
+        raw = (
             msg.sensor_id,
             stamp.sec * conv.NS_PER_S + stamp.nanosec,
             msg.position,
@@ -93,10 +95,46 @@ class ModeSwitch:
             conv.detection_length(msg),
             time.monotonic(),
         )
+        if self.mode is None:
+            self._decide()
+            if self.mode is None:
+                self._hold(raw)
+                return True
+        if self.mode != STREAM:
+            return False
+        self.stream.ingest.bounds = self._node.assembler.bounds  # live parameter changes
+        self.stream.add(*raw)
         return True
 
+    def _hold(self, raw: tuple) -> None:
+        """A detection before any layout in ``auto`` without an episode publisher: the mode
+        is not known yet (the source's /road/episode publisher may not be discovered yet),
+        so it waits."""
+        if len(self._early) >= self._node.config.max_buffered:
+            self.early_refused += 1
+            self._node._on_reject(
+                'buffer_full',
+                f'sensor {raw[0]}, stamp {raw[1]} ns: more than max_buffered detections '
+                'before the layout',
+            )
+            return
+        self._early.append(raw)
+        self.early_held += 1
+
+    def _release_early(self) -> None:
+        """The mode is decided: the held detections go to it, in arrival order."""
+        early, self._early = self._early, []
+        for sensor_id, stamp_ns, position, velocity, lane, length, t_rx in early:
+            if self.mode == STREAM:
+                self.stream.ingest.bounds = self._node.assembler.bounds
+                self.stream.add(sensor_id, stamp_ns, position, velocity, lane, length, t_rx)
+            else:
+                self._node.assembler.add_detection(
+                    sensor_id, stamp_ns, position, velocity, t_rx, lane, length
+                )
+
     def tick(self, now: float) -> None:
-        if self.setting == 'auto' and self.mode is not None:
+        if self.setting == 'auto' and (self.mode is not None or self._early):
             self._decide()
         if self.stream is not None:
             self.stream.tick(now)
@@ -110,6 +148,8 @@ class ModeSwitch:
 
     def _decide(self) -> None:
         has_source = self._episode_publishers() > 0
+        if self.mode is None and self._layout is None and not has_source:
+            return  # no layout and no sign of episodes: detections wait for the layout
         if self.mode is None:
             self._switch(EPISODES if has_source else STREAM, 'first detection')
         elif self.mode == STREAM and has_source:
@@ -128,6 +168,8 @@ class ModeSwitch:
         if old == STREAM and self.stream is not None:
             self.stream.flush(time.monotonic())
         self._node.get_logger().info(f'mode {mode} ({why})')
+        if self._early:
+            self._release_early()
 
     def _start_stream(self) -> None:
         cfg = self._node.config
@@ -137,6 +179,7 @@ class ModeSwitch:
             segment_size=cfg.segment_size,
             seed=cfg.seed,
             max_buffered=cfg.max_buffered,
+            max_uncommitted=self._max_uncommitted,
         )
         log = leveled_log(self._node.get_logger())
         context = self._node.context
@@ -159,6 +202,13 @@ class ModeSwitch:
         values['mode'] = self.mode or 'undecided'
         values['mode_setting'] = self.setting
         values['mode_switches'] = self.switches
+        values['held_before_mode'] = len(self._early)
+        name = 'handled.before_layout'
+        values[name] = int(values.get(name, 0)) + self.early_held
+        if self.early_refused:
+            values['rejected'] = int(values['rejected']) + self.early_refused
+            name = 'rejected.buffer_full'
+            values[name] = int(values.get(name, 0)) + self.early_refused
         s = self.stream
         if s is None:
             return

@@ -4,7 +4,10 @@ One incremental core session per episode (``Associator.session``): each complete
 fed with ``add_segment`` and the labels of everything fed so far come back. Track numbers
 are kept stable from one update to the next (the new labels are matched to the previous
 track ids by the largest overlap, Hungarian), so a downstream tracker sees the same id for
-the same target in the partial and the final output.
+the same target in the partial and the final output. When the associator moves every
+detection of a published track to other tracks (two segment clusters linked into one, for
+example), that id is retired: each later update of the episode names it in
+``Result.retired``, and it is never given to another track.
 """
 
 from __future__ import annotations
@@ -48,6 +51,8 @@ class Result:
     missing: int = 0  # detections ENDED announced that the node never received [-]
     lanes: np.ndarray | None = None  # lane of each detection, -1 unknown
     lengths: np.ndarray | None = None  # measured vehicle length [m], NaN unknown
+    # ids of tracks an earlier update of this episode published that hold no detection now
+    retired: tuple[int, ...] = ()
 
 
 class _EpisodeSolve:
@@ -56,6 +61,17 @@ class _EpisodeSolve:
         self.fed: list[Part] = []
         self.ids = np.zeros(0, dtype=np.int64)  # stable ids, aligned with the fed order
         self.segments_done = 0
+        self.published: set[int] = set()  # every id an update of this episode carried
+
+    def next_id(self) -> int:
+        """The smallest id no update of this episode has used (a retired id stays retired)."""
+        return max(self.published) + 1 if self.published else 0
+
+    def publish(self) -> tuple[int, ...]:
+        """Record the current ids as published; the ids published before and gone now."""
+        current = set(np.unique(self.ids[self.ids >= 0]).tolist())
+        self.published |= current
+        return tuple(sorted(self.published - current))
 
 
 def _concat(parts: list[Part]) -> tuple[np.ndarray, ...]:
@@ -95,12 +111,13 @@ def to_detections(part: Part) -> Detections:
     )
 
 
-def stable_ids(previous: np.ndarray, labels: np.ndarray) -> np.ndarray:
+def stable_ids(previous: np.ndarray, labels: np.ndarray, first_free: int = 0) -> np.ndarray:
     """Rename ``labels`` so that they agree with ``previous`` ids where possible.
 
     ``previous`` holds the earlier ids of the first ``len(previous)`` detections
     (UNASSIGNED where none). New labels are matched one-to-one to previous ids maximising
-    shared detections; unmatched labels get fresh ids. UNASSIGNED stays UNASSIGNED.
+    shared detections; unmatched labels get fresh ids, none below ``first_free`` (ids in use
+    earlier are not handed out again). UNASSIGNED stays UNASSIGNED.
     """
     labels = np.asarray(labels, dtype=np.int64)
     out = np.full(labels.shape, UNASSIGNED, dtype=np.int64)
@@ -122,7 +139,7 @@ def stable_ids(previous: np.ndarray, labels: np.ndarray) -> np.ndarray:
             for i, j in zip(r, c):
                 if table[i, j] > 0:
                     mapping[int(new_vals[i])] = int(prev_vals[j])
-    next_id = int(prev_vals.max()) + 1 if prev_vals.size else 0
+    next_id = max(int(prev_vals.max()) + 1 if prev_vals.size else 0, first_free)
     used = set(mapping.values())
     for v in new_vals.tolist():
         if v not in mapping:
@@ -149,7 +166,7 @@ class Solver:
         if job.kind == 'segment':
             state = self._episodes.setdefault(job.episode_id, _EpisodeSolve())
             labels, error = self._add(state, job, job.parts[0])
-            state.ids = stable_ids(state.ids, labels)
+            state.ids = stable_ids(state.ids, labels, state.next_id())
         elif job.kind == 'final':
             state = self._episodes.pop(job.episode_id, None) or _EpisodeSolve()
         else:  # 'rerun': associate everything again, from scratch
@@ -157,6 +174,7 @@ class Solver:
             si, ns, vel, ln, _ = _concat(old.fed)
             previous = dict(zip(_keys(si, ns, ln, vel), old.ids.tolist()))
             state = _EpisodeSolve()
+            state.published = old.published
             labels = None
             for part in job.parts:
                 labels, error = self._add(state, job, part)
@@ -169,9 +187,10 @@ class Solver:
             aligned = np.array(
                 [previous.get(k, UNASSIGNED) for k in _keys(si, ns, ln, vel)], dtype=np.int64
             )
-            state.ids = stable_ids(aligned, labels)
+            state.ids = stable_ids(aligned, labels, old.next_id())
             state.segments_done = len(job.parts)
         solve_time = time.perf_counter() - t0
+        retired = state.publish()
         si, ns, vel, lanes, lengths = _concat(state.fed)
         return Result(
             episode_id=job.episode_id,
@@ -192,6 +211,7 @@ class Solver:
             missing=job.missing,
             lanes=lanes,
             lengths=lengths,
+            retired=retired,
         )
 
     @staticmethod
@@ -237,7 +257,12 @@ class SolverProcess:
             name='mlkm_solver',
             daemon=True,
         )
-        self._proc.start()
+        # mlkm_ros.lifecycle imports no ROS; imported here so that this module loads none of
+        # the mlkm_ros package
+        from mlkm_ros.lifecycle import stop_signals_blocked
+
+        with stop_signals_blocked():  # see mlkm_ros.lifecycle.helper_process
+            self._proc.start()
         sender.close()  # the child holds the only writer: its exit ends get() with None
 
     def submit(self, job: Job | None) -> None:
@@ -256,14 +281,19 @@ class SolverProcess:
         if self._proc.is_alive():
             self._proc.terminate()
             self._proc.join(2.0)
+        # The process is gone: jobs still queued are never taken, and the queue's feeder
+        # thread, writing them into a full pipe, would hold up the exit of the node for ever.
+        self._jobs.cancel_join_thread()
+        self._jobs.close()
 
 
 def _serve(jobs, results, parent: int, encode: Encoder) -> None:
     """Solver process main loop; exits on None or when the node's process is gone."""
     import queue as _queue
-    import signal
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node stops us; Ctrl-C is for it
+    from mlkm_ros.lifecycle import helper_process
+
+    helper_process(parent)  # Ctrl-C is for the node, which stops us; we die with it
     try:
         from threadpoolctl import threadpool_limits
 

@@ -60,7 +60,8 @@ class StreamSettings:
     lag: float  # [s] stamp time a link stays revisable; also the quiet time before a flush
     segment_size: int
     seed: int
-    max_buffered: int  # detections held before the layout [-]
+    max_buffered: int  # detections held before the layout, or queued for the tracker [-]
+    max_uncommitted: int = 0  # the tracker's backlog bound (StreamConfig), 0 = none [-]
 
 
 class StreamIngest:
@@ -176,11 +177,14 @@ class StreamIngest:
         if reason is not None:
             self._reject(reason, sensor_id, stamp_ns, velocity)
             return
-        self.accepted += 1
-        key = self.next_key
-        self.next_key += 1
         length = math.nan if length == 0.0 else length
-        self._send(('det', key, s, sensor_id, stamp_ns, velocity, position, lane, length, now))
+        item = ('det', self.next_key, s, sensor_id, stamp_ns, velocity, position, lane, length)
+        if self._send((*item, now)) is False:  # the tracker process's queue is full
+            self._seen.discard(dup)
+            self._reject('buffer_full', sensor_id, stamp_ns, velocity)
+            return
+        self.accepted += 1
+        self.next_key += 1
 
     def _reject(self, reason: str, sensor_id: int, stamp_ns: int, velocity: float) -> None:
         self.rejected[reason] += 1
@@ -211,8 +215,17 @@ class StreamMode:
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
         self._publish = publish
         self._log = log
+        self.ready_after: float | None = None  # [s] from here to the tracker process ready
         self._process = TrackerProcess(
-            TrackerSettings(settings.method, settings.lag, settings.segment_size, settings.seed)
+            TrackerSettings(
+                settings.method,
+                settings.lag,
+                settings.segment_size,
+                settings.seed,
+                settings.max_uncommitted,
+            ),
+            max_queued=settings.max_buffered,
+            on_ready=self._on_ready,
         )
         self.ingest = StreamIngest(bounds, settings.max_buffered, self._process.put, on_reject)
         self._lock = threading.Lock()
@@ -243,6 +256,11 @@ class StreamMode:
         """Wait until the tracker process has warmed up (its imports, the first solve); False
         if it did not within ``timeout`` seconds."""
         return self._process.wait_ready(timeout)
+
+    def _on_ready(self, seconds: float) -> None:
+        self.ready_after = seconds
+        how = 'forked at start-up' if self._process.forked else 'spawned'
+        self._log('info', f'stream mode: tracker ready after {seconds:.2f} s ({how})')
 
     def clock(self, now: float) -> None:
         """The node's clock for the reorder buffer while no detection arrives (called by a
@@ -316,6 +334,11 @@ class StreamMode:
             'stream.lag': self.settings.lag,
             'stream.method': self.settings.method,
             'stream.held_before_layout': self.ingest.held,
+            'stream.tracker_ready': self._process.ready,
+            'stream.tracker_ready_after': (
+                '' if self.ready_after is None else f'{self.ready_after:.3f}'
+            ),
+            'stream.queued_for_tracker': self._process.queued,
             'stream.track_updates_published': self.published,
             'stream.errors': self.errors,
             'stream.error_last': self.last_error,

@@ -26,6 +26,8 @@ import time
 from collections import deque
 from typing import Any
 
+from mlkm_ros.lifecycle import helper_process, stop_signals_blocked
+
 #: Shortest time between two looks at the result pipe from ``done`` [s]: the tracker asks at
 #: every push, and a look is a system call.
 LOOK_PERIOD = 0.002
@@ -44,7 +46,8 @@ class SolverProcess:
             name='mlkm_stream_solver',
             daemon=True,
         )
-        self._proc.start()
+        with stop_signals_blocked():  # see mlkm_ros.lifecycle.helper_process
+            self._proc.start()
         request_reader.close()
         result_writer.close()
         #: (send end of the requests, receive end of the results) for the SolverClient
@@ -121,9 +124,7 @@ class _Future:
 
 def _serve(requests, results, parent: int) -> None:
     """Process main loop: (function, arguments) in, ('ok', value) or ('error', text) out."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node stops us; Ctrl-C is for it
+    helper_process(parent)  # Ctrl-C is for the node, which stops us; we die with it
     try:
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
     except (OSError, AttributeError):

@@ -9,6 +9,12 @@ TrackArray holding the latest state of every track the batch changed (TrackArray
 MODE_STREAM: tracks with all their detections, the detections that became unassigned,
 committed_until). Memory stays bounded: a detection's data is dropped once its link is
 committed and its track is FINAL (or it was committed unassigned).
+
+Track ids: each tracker (one per layout) is a *run*, numbered by its start in microseconds
+since the Unix epoch (TrackArray.run), or just past the last id used when that is later; the
+core's track n of the run is published as run + n. A run numbers far fewer tracks than
+microseconds pass, so the ids of a node restarted later never meet those it published
+before, and they stay below 2^53 (exact in a float).
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ class TrackerSettings:
     lag: float  # [s]
     segment_size: int
     seed: int
+    max_uncommitted: int = 0  # StreamConfig.max_uncommitted (0: no bound) [-]
 
 
 #: A queued detection: ('det', key, sensor index, sensor id, stamp ns, velocity, position,
@@ -95,21 +102,42 @@ class TrackerState:
         self.committed_until = -math.inf
         self._reorder: ReorderBuffer | None = None
         self.node_now = -math.inf  # the node's clock as far as its items tell [s]
+        self.run = 0  # the current run's first track id [us since the Unix epoch]
+        self._next_id = 0  # past every track id published so far
 
     # --- inputs ---------------------------------------------------------------------------
-    def set_layout(self, layout: Layout, entries, exits) -> Answer | None:
-        """A new road: the old tracker is flushed first (its tracks become FINAL)."""
+    def set_layout(self, layout: Layout, entries, exits) -> Answer:
+        """A new road, a new run: the old tracker is flushed first (its tracks become
+        FINAL); the first road of the process announces its run with an empty TrackArray,
+        which tells consumers that the tracks of a run before a restart have ended."""
         answer = self.flush(time.monotonic()) if self._tracker is not None else None
         from mlkm_core.streaming import StreamConfig, StreamTracker
 
         s = self._settings
-        config = StreamConfig(method=s.method, lag=s.lag, segment_size=s.segment_size, seed=s.seed)
+        config = StreamConfig(
+            method=s.method,
+            lag=s.lag,
+            segment_size=s.segment_size,
+            seed=s.seed,
+            max_uncommitted=s.max_uncommitted,
+        )
         self._tracker = StreamTracker(
             layout, config, entries=entries, exits=exits, executor=self._executor
         )
+        self.run = max(time.time_ns() // 1000, self._next_id)
         self._layout = layout
         self._reorder = ReorderBuffer(layout.n_sensors)
         self.newest = self.committed_until = -math.inf
+        if answer is None:
+            data = self._encode(
+                method=s.method,
+                tracks=[],
+                unassigned=[],
+                committed_until_ns=0,
+                solve_time=0.0,
+                run=self.run,
+            )
+            answer = Answer(data, [], 0, 0, 0.0, -math.inf, -math.inf, 0, 0)
         return answer
 
     def hold(self, item: Item) -> None:
@@ -166,7 +194,7 @@ class TrackerState:
                 error = f'tracker refused detection {key}: {type(exc).__name__}: {exc}'
                 merged.unassigned[key] = None
                 continue
-            merged.add(update)
+            merged.add(update, self.run)
         return self._answer(merged, received, time.perf_counter() - t0, error)
 
     def defer_solves(self, on: bool) -> None:
@@ -187,7 +215,7 @@ class TrackerState:
         merged = _Merged()
         error = None
         try:
-            merged.add(self._tracker.poll())
+            merged.add(self._tracker.poll(), self.run)
         except Exception as exc:  # noqa: BLE001 - reported
             error = f'tracker poll failed: {type(exc).__name__}: {exc}'
         if not (merged.tracks or merged.unassigned or merged.committed or error):
@@ -200,7 +228,7 @@ class TrackerState:
         error = None
         if self._tracker is not None:
             try:
-                merged.add(self._tracker.flush())
+                merged.add(self._tracker.flush(), self.run)
             except Exception as exc:  # noqa: BLE001 - reported
                 error = f'tracker flush failed: {type(exc).__name__}: {exc}'
             self.counts['flushes'] += 1
@@ -229,6 +257,7 @@ class TrackerState:
                 self._published[k] = track_id
             tracks.append((track_id, status, held))
             self._count_status(track_id, status)
+            self._next_id = max(self._next_id, track_id + 1)
         unassigned = []
         for k in merged.unassigned:
             if k in merged.in_tracks:
@@ -260,6 +289,7 @@ class TrackerState:
                 unassigned=unassigned,
                 committed_until_ns=_to_ns(committed),
                 solve_time=solve_time,
+                run=self.run,
             )
         self._forget(merged)
         stats = dict(self.counts)
@@ -325,7 +355,8 @@ class TrackerState:
 
 
 class _Merged:
-    """The updates of one batch folded into one: the latest state of each changed track."""
+    """The updates of one batch folded into one: the latest state of each changed track,
+    under its published id (the run's first id + the core's id)."""
 
     def __init__(self) -> None:
         self.tracks: dict[int, tuple[int, np.ndarray]] = {}
@@ -334,16 +365,16 @@ class _Merged:
         self.committed: list[tuple[int, int]] = []
         self.committed_until = -math.inf
 
-    def add(self, update) -> None:
+    def add(self, update, run: int) -> None:
         for t in update.tracks:
             keys = np.asarray(t.keys, np.int64)
-            self.tracks[int(t.track_id)] = (int(t.status), keys)
+            self.tracks[run + int(t.track_id)] = (int(t.status), keys)
             self.in_tracks.update(keys.tolist())
         for k in np.asarray(update.unassigned, np.int64).tolist():
             self.unassigned[k] = None
             self.in_tracks.discard(k)
         rows = np.asarray(update.committed, np.int64).reshape(-1, 2)
-        self.committed.extend((int(a), int(b)) for a, b in rows.tolist())
+        self.committed.extend((int(a), run + int(b) if b >= 0 else -1) for a, b in rows.tolist())
         self.committed_until = max(self.committed_until, float(update.committed_until))
 
 

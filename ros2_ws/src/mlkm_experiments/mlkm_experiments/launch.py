@@ -20,6 +20,9 @@ from pathlib import Path
 #: Shared with tests/conftest.py: a domain id held by a lock file is in use on this machine.
 LOCK_DIR = Path(os.environ.get('MLKM_DOMAIN_LOCK_DIR', '/tmp/mlkm-ros-domain-locks'))
 
+#: Every Proc started by this process and not yet stopped, by process group id.
+_RUNNING: dict[int, Proc] = {}
+
 
 def executable(package: str, name: str) -> Path:
     """``<prefix of package>/lib/<package>/<name>``, as ``ros2 run`` finds it."""
@@ -82,7 +85,11 @@ def graph_env(domain_id: int) -> dict[str, str]:
 
 
 class Proc:
-    """One started executable, in its own process group, output to a log file."""
+    """One started executable, in its own process group, output to a log file.
+
+    It dies with the thread that starts it (SIGKILL, ``PR_SET_PDEATHSIG``), so a killed
+    demo, benchmark or test run leaves no node behind; start it from a thread that outlives
+    it (the main thread). :func:`kill_all` ends every group still running."""
 
     def __init__(
         self,
@@ -106,7 +113,9 @@ class Proc:
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
+                preexec_fn=_PDEATHSIG,
             )
+        _RUNNING[self.proc.pid] = self
         if echo:
             print(f'started {name} (pid {self.proc.pid}): {" ".join(argv)}', flush=True)
 
@@ -149,7 +158,29 @@ class Proc:
         is left of the group after the leader exited is killed too."""
         status = stop_process_group(self.proc, grace)
         _killpg(self.proc.pid, signal.SIGKILL)
+        _RUNNING.pop(self.proc.pid, None)
         return status
+
+
+def kill_all() -> list[str]:
+    """SIGKILL every process group a Proc of this process started and did not stop yet (a
+    run interrupted by SIGTERM or Ctrl-C); returns their names. Safe in a signal handler or
+    at exit."""
+    names = []
+    for pgid, proc in list(_RUNNING.items()):
+        _killpg(pgid, signal.SIGKILL)
+        names.append(proc.name)
+        _RUNNING.pop(pgid, None)
+    return names
+
+
+def _pdeathsig():
+    from mlkm_ros.lifecycle import pdeathsig_preexec
+
+    return pdeathsig_preexec()
+
+
+_PDEATHSIG = _pdeathsig()
 
 
 def stop_process_group(proc: subprocess.Popen, grace: float = 10.0) -> int:

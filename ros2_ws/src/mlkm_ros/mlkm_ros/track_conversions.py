@@ -40,13 +40,16 @@ def tracks_to_msg(
     stamp_ns: int,
     lanes: np.ndarray | None = None,
     lengths: np.ndarray | None = None,
+    retired: Sequence[int] = (),
 ) -> TrackArray:
     """Group detections by label into Tracks (each ordered by position, then stamp, then
     lane) of an episodes-mode TrackArray: every track STATUS_FINAL in a final array,
     STATUS_CONFIRMED in a partial one.
 
     ``labels[i]`` is the track id of detection i, or -1 (unassigned); ``lanes`` (-1 unknown)
-    and ``lengths`` [m] (NaN unknown) default to unknown.
+    and ``lengths`` [m] (NaN unknown) default to unknown. Each id of ``retired`` (a track an
+    earlier message of the episode carried, whose detections all went to other tracks) is
+    added as an empty track with STATUS_FINAL.
     """
     labels = np.asarray(labels, dtype=np.int64)
     sensor_ids = np.asarray(sensor_ids, dtype=np.int64)
@@ -98,6 +101,7 @@ def tracks_to_msg(
                 lengths=lengths[group].tolist(),
             )
         )
+    tracks.extend(Track(track_id=int(i), status=Track.STATUS_FINAL) for i in retired)
     msg.tracks = tracks
     return msg
 
@@ -163,10 +167,12 @@ def stream_tracks_to_msg(
     committed_until_ns: int,
     solve_time: float,
     stamp_ns: int,
+    run: int = 0,
 ) -> TrackArray:
     """A stream-mode TrackArray: ``tracks`` are (track id, status, rows) of the tracks that
     changed, each with every detection it holds (ordered here by position, then stamp);
-    ``unassigned`` the detections that became unassigned; episode_id 0, final false."""
+    ``unassigned`` the detections that became unassigned; ``run`` the tracker run that
+    numbered the tracks (TrackArray.run); episode_id 0, final false."""
     msg = TrackArray(
         header=header(stamp_ns),
         mode=TrackArray.MODE_STREAM,
@@ -175,6 +181,7 @@ def stream_tracks_to_msg(
         final=False,
         solve_time=float(solve_time),
         committed_until=ns_to_time(max(int(committed_until_ns), 0)),
+        run=int(run),
     )
     # numeric sequences as array.array: the message's setters then copy them whole instead
     # of checking every element (this runs for every TrackArray of stream mode)
@@ -212,6 +219,7 @@ class StreamTracks:
     labels: np.ndarray  # int64 track id, -1 unassigned
     status: np.ndarray  # int64 Track.STATUS_* of the detection's track, -1 unassigned
     committed_until_ns: int
+    run: int = 0  # TrackArray.run: the tracker run that numbered the tracks
 
 
 def stream_tracks_from_msg(msg: TrackArray) -> StreamTracks:
@@ -267,4 +275,5 @@ def stream_tracks_from_msg(msg: TrackArray) -> StreamTracks:
         np.asarray(labels, np.int64),
         np.asarray(status, np.int64),
         time_to_ns(msg.committed_until),
+        int(msg.run),
     )

@@ -29,8 +29,6 @@ from typing import Any
 
 import numpy as np
 import rclpy
-from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException
 
 from mlkm_core.simulator import (
     StreamDetection,
@@ -42,6 +40,7 @@ from mlkm_core.simulator import (
 )
 from mlkm_core.types import Dataset
 from mlkm_ros import conversions as conv
+from mlkm_ros import lifecycle
 from mlkm_ros.params import ParameterError
 from road_sensors.sim_params import _NODE_SPECS, SensorSimConfig, _sim_specs
 from road_sensors.source import SensorSource
@@ -169,32 +168,26 @@ class SensorSimNode(SensorSource):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node: SensorSimNode | None = None
-    error: str | None = None
-    try:
-        # Constructed inside the try: a Ctrl-C that lands while the node is being set up (its
-        # publishing thread already started) is an interruption like any other.
-        node = SensorSimNode()
-        rclpy.spin(node)
-    except ParameterError as exc:
-        error = str(exc)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RCLError:
-        # The publishing thread (done, or stopped by Ctrl-C) shut the context down while the
-        # executor was building its wait set: an end of the run, not an error.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.stop()  # first: the thread must not report an interruption as an error
-            error = node.error
-            node.destroy_node()
-        rclpy.try_shutdown()
-        if error:
-            print(f'sensor_sim: {error}', file=sys.stderr)
+    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle), also while the node is set up
+    # or waits for subscribers; the publishing thread shuts the context down when it is done.
+    with lifecycle.stop_signals():
+        lifecycle.init_rclpy(args)
+        node: SensorSimNode | None = None
+        error: str | None = None
+        try:
+            node = SensorSimNode()
+            lifecycle.spin(node)
+        except ParameterError as exc:
+            error = str(exc)
+            return 2
+        finally:
+            if node is not None:
+                node.stop()  # first: the thread must not report an interruption as an error
+                error = node.error
+                node.destroy_node()
+            rclpy.try_shutdown()
+            if error:
+                print(f'sensor_sim: {error}', file=sys.stderr)
     return 1 if error else 0
 
 

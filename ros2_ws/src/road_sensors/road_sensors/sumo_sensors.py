@@ -34,10 +34,9 @@ from typing import Any
 
 import numpy as np
 import rclpy
-from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException
 
 from mlkm_ros import conversions as conv
+from mlkm_ros import lifecycle
 from mlkm_ros.params import ParameterError
 from mlkm_sumo import PassageStream, SumoDataset, SumoError, episodes, road
 from mlkm_sumo.measurement import PASSAGE
@@ -202,30 +201,24 @@ class SumoSensorsNode(SensorSource):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node: SumoSensorsNode | None = None
-    error: str | None = None
-    code = 0
-    try:
-        # Constructed inside the try: a Ctrl-C that lands while the node is being set up (its
-        # publishing thread already started) is an interruption like any other.
-        node = SumoSensorsNode()
-        rclpy.spin(node)
-    except (ParameterError, SumoError) as exc:
-        error, code = str(exc), EXIT_SUMO
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RCLError:
-        # The publishing thread (done, or stopped by Ctrl-C) shut the context down while the
-        # executor was building its wait set: an end of the run, not an error.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.stop()  # first: the thread must not report an interruption as an error
-            error, code = node.error, node.exit_code
-            node.destroy_node()
-        rclpy.try_shutdown()
+    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle), also while the node is set up
+    # or waits for subscribers; the publishing thread shuts the context down when it is done.
+    with lifecycle.stop_signals():
+        lifecycle.init_rclpy(args)
+        node: SumoSensorsNode | None = None
+        error: str | None = None
+        code = 0
+        try:
+            node = SumoSensorsNode()
+            lifecycle.spin(node)
+        except (ParameterError, SumoError) as exc:
+            error, code = str(exc), EXIT_SUMO
+        finally:
+            if node is not None:
+                node.stop()  # first: the thread must not report an interruption as an error
+                error, code = node.error, node.exit_code
+                node.destroy_node()
+            rclpy.try_shutdown()
     if error:
         print(f'sumo_sensors: error: {error}', file=sys.stderr)
         return code

@@ -22,12 +22,12 @@ from dataclasses import dataclass
 
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 
+from mlkm_ros import lifecycle
 from mlkm_ros.params import (
     ConfigError,
     declare_bool,
@@ -130,7 +130,8 @@ class BagPlayer(Node):
             self,
             'wait_timeout',
             30.0,
-            'Longest wait for subscribers before playing anyway [s].',
+            'Longest wait for subscribers before playing anyway [s]; 0 = no limit (wait '
+            'until they match or the player is stopped).',
             0.0,
             1e6,
         )
@@ -268,7 +269,9 @@ class BagPlayer(Node):
         wanted = self._wait_for_subscribers
         if wanted <= 0:
             return
-        deadline = time.monotonic() + self._wait_timeout
+        limit = self._wait_timeout
+        deadline = time.monotonic() + limit if limit > 0 else None
+        announced = False
         while not self._stop.is_set():
             # Latched topics reach late subscribers anyway: only volatile ones are waited for.
             missing = [
@@ -278,7 +281,13 @@ class BagPlayer(Node):
             ]
             if not missing:
                 return
-            if time.monotonic() >= deadline:
+            if not announced:
+                self.get_logger().info(
+                    f'waiting for {wanted} subscriber(s) on {len(missing)} topic(s)'
+                    + (f' (at most {limit:g} s)' if deadline is not None else '')
+                )
+                announced = True
+            if deadline is not None and time.monotonic() >= deadline:
                 self.get_logger().warning(
                     f'playing although fewer than {wanted} subscribers matched after '
                     f'{self._wait_timeout:g} s on: {", ".join(sorted(missing))}'
@@ -371,34 +380,34 @@ class BagPlayer(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node = None
-    status = EXIT_OK
-    try:
-        node = BagPlayer()
-    except (ConfigError, ParameterException) as exc:
-        print(f'bag_player: {exc}', file=sys.stderr)
-        status = EXIT_BAD_PARAMETER
-    except RefusedError as exc:
-        print(f'bag_player: refusing to play: {exc}', file=sys.stderr)
-        status = EXIT_REFUSED
-    except (KeyboardInterrupt, ExternalShutdownException):
+    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle): exit 0, no traceback
+    with lifecycle.stop_signals():
+        lifecycle.init_rclpy(args)
+        node = None
         status = EXIT_OK
-    if node is None:
-        rclpy.try_shutdown()
-        return status
-    node.start()
-    try:
-        rclpy.spin_until_future_complete(node, node.done)
-        status = node.exit_status
-    except (KeyboardInterrupt, ExternalShutdownException):
-        # The context is already shut down: no ROS logging (it would fail on /rosout).
-        print(f'bag_player: interrupted after {node.played} messages', file=sys.stderr)
-        status = EXIT_OK
-    finally:
-        node.stop()
-        node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            node = BagPlayer()
+        except (ConfigError, ParameterException) as exc:
+            print(f'bag_player: {exc}', file=sys.stderr)
+            status = EXIT_BAD_PARAMETER
+        except RefusedError as exc:
+            print(f'bag_player: refusing to play: {exc}', file=sys.stderr)
+            status = EXIT_REFUSED
+        if node is None:
+            rclpy.try_shutdown()
+            return status
+        node.start()
+        try:
+            lifecycle.spin(node, until=node.done.done)
+            if node.done.done():
+                status = node.exit_status
+            else:
+                print(f'bag_player: interrupted after {node.played} messages', file=sys.stderr)
+                status = EXIT_OK
+        finally:
+            node.stop()
+            node.destroy_node()
+            rclpy.try_shutdown()
     return status
 
 

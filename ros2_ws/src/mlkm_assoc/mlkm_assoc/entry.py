@@ -1,0 +1,13 @@
+"""Entry points of the installed node executables: SIGINT and SIGTERM are caught before the
+node's module (rclpy, numpy, ...) is imported, so a Ctrl-C at any moment of the start-up ends
+the process with exit 0 and no traceback (mlkm_ros.lifecycle)."""
+
+from mlkm_ros.lifecycle import run
+
+
+def association_node() -> int:
+    return run('mlkm_assoc.association_node')
+
+
+def scorer_node() -> int:
+    return run('mlkm_assoc.scorer_node')

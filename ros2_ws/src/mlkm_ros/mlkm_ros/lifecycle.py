@@ -1,0 +1,193 @@
+"""How a node's process starts and ends: Ctrl-C or SIGTERM at any moment (during the imports,
+the node's construction, its work or its clean-up) ends it with exit status 0 and no
+traceback, and its helper processes die with it.
+
+rclpy's own signal handlers shut the context down from another thread and then raise
+KeyboardInterrupt in the main thread, so a signal could land while the executor builds its
+wait set (``RCLError: ... context is not valid``) or in the middle of the clean-up. Here a
+signal only sets a flag (:data:`STOP`); the main thread spins the node in short steps
+(:func:`spin`), sees the flag, leaves the loop and cleans up in order. The installed
+executables start through :func:`run`, which catches the signals before the node's module
+(and rclpy, numpy, ...) is imported.
+
+This module imports no rclpy at module level: the helper processes of a node use
+:func:`die_with_parent` without loading ROS.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+#: The signals that end a node: Ctrl-C and a polite kill.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: How long one executor step waits for work [s]: the longest a stop waits to be seen.
+SPIN_STEP = 0.1
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+class StopRequest:
+    """Set by SIGINT or SIGTERM (or :meth:`request`); one per process."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        self.signum: int | None = None
+
+    @property
+    def requested(self) -> bool:
+        return self._event.is_set()
+
+    def request(self, signum: int | None = None) -> None:
+        if self.signum is None:
+            self.signum = signum
+        self._event.set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self._event.wait(timeout)
+
+    def clear(self) -> None:
+        self.signum = None
+        self._event.clear()
+
+    def handler(self, signum: int, _frame: Any) -> None:
+        self.request(signum)
+
+
+#: The process's stop request.
+STOP = StopRequest()
+
+
+@contextmanager
+def stop_signals() -> Iterator[StopRequest]:
+    """SIGINT and SIGTERM set :data:`STOP` while inside; the previous handlers come back on
+    leaving (a node's ``main`` called in process, by a test, leaves pytest's Ctrl-C alone).
+    Outside the main thread no handler can be installed: the flag is still returned."""
+    if threading.current_thread() is not threading.main_thread():
+        yield STOP
+        return
+    previous = {sig: signal.signal(sig, STOP.handler) for sig in STOP_SIGNALS}
+    try:
+        yield STOP
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def run(module: str, args: list[str] | None = None) -> int:
+    """Entry point of an installed executable: import ``module`` and return its
+    ``main(args)``. A stop signal during the import ends the process at once with exit 0
+    (SystemExit: nothing is running yet); from then on it only sets :data:`STOP`."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, _exit_quietly)
+    try:
+        main: Callable[[list[str] | None], int] = importlib.import_module(module).main
+    finally:
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, STOP.handler)  # for the rest of the process's life
+    return main(args)
+
+
+def _exit_quietly(_signum: int, _frame: Any) -> None:
+    raise SystemExit(0)
+
+
+def init_rclpy(args: list[str] | None) -> None:
+    """``rclpy.init`` without rclpy's signal handlers (see the module docstring)."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+
+
+def spin(node: Any, until: Callable[[], bool] | None = None) -> None:
+    """Spin ``node`` in the calling thread until a stop was requested, ``until()`` holds or
+    its context was shut down (by the node itself, for example at the end of its run)."""
+    from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    context = node.context
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        while not STOP.requested and context.ok() and not (until is not None and until()):
+            executor.spin_once(timeout_sec=SPIN_STEP)
+    except ExternalShutdownException:
+        pass
+    except RCLError:
+        if context.ok():
+            raise  # a context shut down while the wait set was built is an end, not an error
+    finally:
+        executor.remove_node(node)
+        executor.shutdown(timeout_sec=0.0)
+
+
+def end_helpers(timeout: float = 2.0) -> None:
+    """After a stop request: kill the process's helper processes (multiprocessing children)
+    and reap them. A Ctrl-C drops the work they have in hand instead of waiting for it (a
+    helper still importing would not even take SIGTERM before it is up); the node's own
+    clean-up then finds them gone."""
+    import multiprocessing
+
+    children = multiprocessing.active_children()
+    for child in children:
+        child.kill()
+    deadline = time.monotonic() + timeout
+    for child in children:
+        child.join(max(0.0, deadline - time.monotonic()))
+
+
+def die_with_parent(parent: int | None = None) -> None:
+    """In a helper process: be killed (SIGKILL) when the thread that started it ends, which
+    for a node's helpers is the node's main thread, so they never outlive a node that was
+    killed. Exits at once when ``parent`` (the expected parent pid) is already gone."""
+    if sys.platform.startswith('linux'):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if parent is not None and os.getppid() != parent:
+        os._exit(0)
+
+
+def pdeathsig_preexec() -> Callable[[], None] | None:
+    """A ``preexec_fn`` for ``subprocess.Popen`` that makes the child die (SIGKILL) with the
+    thread that starts it; None off Linux. The libc function is looked up here, in the
+    parent, so that the child only makes the system call between fork and exec."""
+    if not sys.platform.startswith('linux'):
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    kill = int(signal.SIGKILL)
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, kill, 0, 0, 0)
+
+    return preexec
+
+
+@contextmanager
+def stop_signals_blocked() -> Iterator[None]:
+    """Block SIGINT and SIGTERM in the calling thread while it starts a helper process, which
+    inherits the mask: a Ctrl-C to the process group during the helper's imports is then no
+    traceback, and :func:`helper_process` unblocks them once the helper ignores Ctrl-C. A
+    signal that reaches the caller meanwhile is delivered on leaving."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def helper_process(parent: int) -> None:
+    """First thing in a node's helper process (started under :func:`stop_signals_blocked`):
+    ignore Ctrl-C (the node stops its helpers itself), end on SIGTERM, die with the node's
+    process ``parent`` even when it is killed (:func:`die_with_parent`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+    die_with_parent(parent)
