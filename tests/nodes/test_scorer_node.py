@@ -165,37 +165,87 @@ def test_complete_episode_hand_computed(harness) -> None:
     assert s.mean_accuracy == pytest.approx(5 / 6)
 
 
-def test_missing_truth_is_never_a_perfect_score(harness) -> None:
-    """No truth at all: accuracy NaN, flagged incomplete, outside the mean; partial truth:
-    scored over what arrived, flagged, outside the mean; the mean holds complete ones only."""
-    h = harness(truth_timeout=0.2)
+FLOAT_FIELDS = (
+    'accuracy',
+    'link_recall',
+    'link_precision',
+    'adjusted_rand_index',
+    'mean_accuracy',
+    'revision_rate',
+    'cumulative_revision_rate',
+)
+
+
+def assert_numbers(scores: list[AssociationScore]) -> None:
+    """No published score carries NaN or infinity."""
+    for s in scores:
+        bad = [f for f in FLOAT_FIELDS if not math.isfinite(getattr(s, f))]
+        assert not bad, f'episode {s.episode_id}: {bad} not finite'
+
+
+def test_unscorable_episode_is_never_published(harness) -> None:
+    """No truth at all (with or without ENDED): no accuracy, so nothing is published, the
+    episode is logged and counted unscored; partial truth: scored over what arrived, flagged,
+    outside the mean, whose value is 0 (never NaN) while no episode is in it; the mean holds
+    complete ones only. No published number is NaN."""
+    h = harness(truth_timeout=0.2, diagnostics_period=0.1)
     h.started(0, 0.0, 2.0)
     h.ended(0, 0.0, 60.0)
     h.final(0, 0.0)
-    (s,) = h.wait_scores(1)
-    assert s.episode_id == 0 and math.isnan(s.accuracy)
-    assert (s.correct, s.total) == (0, 0)
-    assert not s.truth_complete and (s.truth_expected, s.truth_received) == (6, 0)
-    assert (s.episodes_scored, s.episodes_incomplete) == (0, 1)
-    assert math.isnan(s.mean_accuracy)
+    assert h.spin_until(lambda: h.diag.get('episodes_unscored') == '1')
 
     h.started(1, 100.0, 70.0)
     h.ended(1, 100.0, 160.0)
     h.truth(1, 100.0, skip=2)  # 4 of 6
     h.final(1, 100.0, swap=True)
-    s = h.wait_scores(2)[1]
+    (s,) = h.wait_scores(1)
     assert (s.episode_id, s.correct, s.total) == (1, 3, 4)
     assert not s.truth_complete and (s.truth_expected, s.truth_received) == (6, 4)
-    assert (s.episodes_scored, s.episodes_incomplete) == (0, 2)
+    assert (s.episodes_scored, s.episodes_incomplete, s.mean_accuracy) == (0, 1, 0.0)
 
     h.episode(2, 200.0, 170.0, swap=True)
-    h.final(3, 300.0)  # ENDED never came: incomplete, expected unknown (0)
-    s2, s3 = h.wait_scores(4)[2:]
+    h.final(3, 300.0)  # ENDED and truth never came: not scored either
+    s2 = h.wait_scores(2)[1]
     assert s2.truth_complete and s2.accuracy == pytest.approx(5 / 6)
-    assert (s2.episodes_scored, s2.episodes_incomplete) == (1, 2)
+    assert (s2.episodes_scored, s2.episodes_incomplete) == (1, 1)
     assert s2.mean_accuracy == pytest.approx(5 / 6)
-    assert not s3.truth_complete and s3.truth_expected == 0
-    assert (s3.episodes_scored, s3.episodes_incomplete) == (1, 3)
+    assert h.spin_until(lambda: h.diag.get('episodes_unscored') == '2')
+    assert [s.episode_id for s in h.scores] == [1, 2]
+    assert h.diag['mean_accuracy'] == f'{5 / 6:.6f}'
+    assert_numbers(h.scores)
+
+
+def test_waits_for_truth_while_it_keeps_arriving(harness) -> None:
+    """The final tracks and ENDED of episodes 0 and 1 come first and their truth trickles in
+    after them, ending long after truth_timeout (a backlog of the truth topic): each episode
+    is scored with its whole truth; while they wait /diagnostics says which episode misses
+    how many ground-truth messages."""
+    h = harness(truth_timeout=3.0, diagnostics_period=0.1)
+    for e in (0, 1):
+        h.started(e, 100.0 * e, 2.0 + e)
+        h.ended(e, 100.0 * e, 60.0 + e)
+        h.final(e, 100.0 * e, swap=e == 1)
+    assert h.spin_until(
+        lambda: (
+            h.diag.get('truth_waiting') == 'episode 0: 6 of 6 missing; episode 1: 6 of 6 missing'
+        )
+    ), h.diag
+    assert h.diag['episodes_waiting_for_truth'] == '2'
+    rows = [(e, row) for e in (0, 1) for row in passages(100.0 * e)]
+    for k, (e, (sensor, stamp, target)) in enumerate(rows):
+        # one message every 0.5 s: 6 s in all, each gap well inside truth_timeout
+        h.spin_until(lambda: False, timeout=0.5)
+        h.node._on_truth(conv.ground_truth_to_msg(e, sensor, stamp, target, 30.0))
+        if k == 8:
+            assert h.spin_until(
+                lambda: h.diag.get('truth_waiting') == 'episode 1: 3 of 6 missing'
+            ), h.diag
+            assert len(h.scores) == 1  # episode 0 was complete
+    s0, s1 = h.wait_scores(2)
+    assert (s0.episode_id, s0.correct, s0.total, s0.truth_complete) == (0, 6, 6, True)
+    assert (s1.episode_id, s1.correct, s1.total, s1.truth_complete) == (1, 5, 6, True)
+    assert (s1.episodes_scored, s1.episodes_incomplete) == (2, 0)
+    assert h.spin_until(lambda: h.diag.get('episodes_waiting_for_truth') == '0')
 
 
 def test_restarted_source_is_scored_again(harness) -> None:

@@ -5,6 +5,12 @@ lane, stamp in integer ns; lane -1 where unknown) and scored with the core's one
 function, ``mlkm_core.metrics.score``; the policies (complete truth, runs, memory) are those
 of :mod:`mlkm_assoc.scorer_node`, which feeds every message the stream mode
 (:mod:`mlkm_assoc.stream_scoring`) did not take in here.
+
+An episode with final tracks waits for its whole ground truth (the ENDED counts) while truth
+keeps arriving: it is scored with the truth at hand only once neither any ground truth nor
+any input for the episode arrived for ``truth_timeout`` seconds (the source stopped, or its
+truth was lost). An episode without any true detection at hand has no accuracy: it is not
+published, only logged and counted (``episodes_unscored``).
 """
 
 from __future__ import annotations
@@ -42,13 +48,12 @@ class ScorerConfig:
 class _Episode:
     """One unscored episode of the current run."""
 
-    last_rx: float  # monotonic time of its last input [s]
+    last_rx: float  # monotonic time of its last input (info, truth, tracks) [s]
     window: Window | None = None
     started_ns: int | None = None  # publication stamp of its STARTED
     counts: dict[int, int] | None = None  # ENDED: {sensor id: detections published}
     truth: dict[Key, tuple[int, float]] = field(default_factory=dict)  # -> (target, true v)
     final: TrackArray | None = None
-    final_rx: float = 0.0
 
     def inside(self, stamp_ns: int) -> bool:
         return self.window is None or self.window[1] <= stamp_ns <= self.window[2]
@@ -108,17 +113,39 @@ class EpisodeScoring:
         self._buffered = 0  # truth messages held in self._open
         self.sum = 0.0  # accuracies in the mean
         self.in_mean = 0
-        self.incomplete = 0
-        self.events: Counter[str] = Counter()
+        self.incomplete = 0  # published with truth_complete false
+        self.last_truth_rx = -math.inf  # monotonic time the last kept ground truth arrived [s]
+        self.events: Counter[str] = Counter({'episodes_unscored': 0})
 
-    def diagnostics(self) -> dict[str, object]:
+    def waiting(self) -> list[tuple[int, str]]:
+        """The episodes whose final tracks came and which wait for truth: (id, what is
+        missing), oldest first."""
+        out = []
+        for episode, ep in sorted(self._open.items(), key=lambda item: item[1].last_rx):
+            if ep.final is None:
+                continue
+            inside = [k for k in ep.truth if ep.inside(k[1])]
+            if ep.counts is None:
+                out.append((episode, f'{len(inside)} received, ENDED not yet'))
+                continue
+            have = Counter(k[0] for k in inside)
+            missing = sum(max(0, n - have[s]) for s, n in ep.counts.items())
+            out.append((episode, f'{missing} of {sum(ep.counts.values())} missing'))
+        return out
+
+    def diagnostics(self, now: float) -> dict[str, object]:
+        waiting = self.waiting()
+        idle = now - self.last_truth_rx
         return {
             'episodes_scored': self.in_mean,
             'episodes_incomplete': self.incomplete,
-            'mean_accuracy': self.sum / self.in_mean if self.in_mean else math.nan,
+            'mean_accuracy': f'{self.sum / self.in_mean:.6f}' if self.in_mean else '',
             'open_episodes': len(self._open),
             'buffered_truth': self._buffered,
             'remembered_scored': len(self._scored),
+            'episodes_waiting_for_truth': len(waiting),
+            'truth_waiting': '; '.join(f'episode {e}: {what}' for e, what in waiting[:10]),
+            'truth_idle': f'{idle:.3f}' if math.isfinite(idle) else '',
         }
 
     # --- inputs ---------------------------------------------------------------------------
@@ -180,6 +207,7 @@ class EpisodeScoring:
         if key not in ep.truth:
             self._buffered += 1
         ep.truth[key] = (conv.ground_truth_target(msg), float(msg.true_velocity))
+        self.last_truth_rx = now
         self._try(episode)
 
     def on_tracks(self, msg: TrackArray) -> None:
@@ -199,18 +227,24 @@ class EpisodeScoring:
                 self.events['final_after_score'] += 1
                 return
         ep = self._episode(episode, now)
-        ep.final, ep.final_rx = msg, now
+        ep.final = msg
         self._try(episode)
 
     def tick(self, now: float) -> None:
-        """Score episodes whose truth timed out, drop those without final tracks."""
+        """Score the episodes whose truth stopped coming, drop those without final tracks.
+
+        An episode with final tracks waits while ground truth keeps arriving (the truth of
+        one source comes in order, so an earlier episode's truth still arriving means its
+        own is yet to come); it gives up once no truth at all and no input for the episode
+        arrived for ``truth_timeout`` seconds."""
         cfg = self.config
         for episode, ep in list(self._open.items()):
-            if ep.final is not None and now - ep.final_rx > cfg.truth_timeout:
+            idle = now - max(ep.last_rx, self.last_truth_rx)
+            if ep.final is not None and idle > cfg.truth_timeout:
                 self._node.get_logger().warning(
-                    f'episode {episode}: scoring with {len(ep.truth)} ground-truth messages '
-                    f'({"unknown" if ep.counts is None else sum(ep.counts.values())} expected) '
-                    f'after waiting {cfg.truth_timeout:g} s'
+                    f'episode {episode}: no ground truth for {cfg.truth_timeout:g} s; scoring '
+                    f'with the {len(ep.truth)} messages at hand '
+                    f'({"unknown" if ep.counts is None else sum(ep.counts.values())} expected)'
                 )
                 self._score(episode)
             elif ep.final is None and now - ep.last_rx > cfg.forget_after:
@@ -230,6 +264,10 @@ class EpisodeScoring:
             ep = self._open[episode] = _Episode(last_rx=now)
         ep.last_rx = now
         return ep
+
+    def announced_open(self) -> bool:
+        """Whether an episode an EpisodeInfo announced is still unscored."""
+        return any(ep.window is not None for ep in self._open.values())
 
     def forget_unannounced(self) -> None:
         """The source is a stream: drop the truth held for episodes no EpisodeInfo announced
@@ -321,13 +359,23 @@ class EpisodeScoring:
             np.array([v[0] for v in values], dtype=np.int64),
         )
         result = score(detections, np.array([track_of.get(k, -1) for k in keys], np.int64))
-        accuracy = result.accuracy if result.total > 0 else math.nan
-        if complete and result.total > 0:
+        expected = 'unknown' if ep.counts is None else str(sum(ep.counts.values()))
+        if result.total == 0:
+            # no true detection at hand: there is no accuracy to publish
+            self.events['episodes_unscored'] += 1
+            self._node.get_logger().warning(
+                f'episode {episode} [{tracks.method}]: not scored, no true detection at hand '
+                f'({len(truth)} of {expected} ground-truth messages, '
+                f'{"all" if complete else "truth incomplete"}); nothing published'
+            )
+            return
+        accuracy = result.accuracy
+        if complete:
             self.sum += accuracy
             self.in_mean += 1
-        elif not complete:
+        else:
             self.incomplete += 1
-        mean = self.sum / self.in_mean if self.in_mean else math.nan
+        mean = self.sum / self.in_mean if self.in_mean else 0.0
         msg = conv.score_to_msg(
             episode_id=episode,
             method=tracks.method,
@@ -336,24 +384,19 @@ class EpisodeScoring:
             episodes_scored=self.in_mean,
             stamp_ns=self._node.get_clock().now().nanoseconds,
         )
-        msg.accuracy = accuracy
         msg.truth_complete = complete
         msg.truth_expected = 0 if ep.counts is None else sum(ep.counts.values())
         msg.truth_received = len(truth)
         msg.episodes_incomplete = self.incomplete
         self._score_pub.publish(msg)
         note = (
-            ''
-            if complete
-            else (
-                f' [truth incomplete: {len(truth)} of '
-                f'{"unknown" if ep.counts is None else msg.truth_expected}; not in the mean]'
-            )
+            '' if complete else f' [truth incomplete: {len(truth)} of {expected}; not in the mean]'
         )
+        mean_text = f'{mean:.4f}' if self.in_mean else 'none yet'
         self._node.get_logger().info(
             f'episode {episode} [{tracks.method}]: accuracy {accuracy:.4f} '
             f'({result.correct}/{result.total}), link P/R {result.link_precision:.4f}/'
             f'{result.link_recall:.4f}, id switches {result.identity_switches}, '
-            f'ARI {result.adjusted_rand_index:.4f}; mean accuracy {mean:.4f} over '
+            f'ARI {result.adjusted_rand_index:.4f}; mean accuracy {mean_text} over '
             f'{self.in_mean} episode(s){note}'
         )

@@ -4,14 +4,19 @@ Joins the FINAL TrackArray of an episode with its GroundTruth messages on (senso
 stamp in integer ns; lane -1 where unknown) and calls the core's one scoring function,
 ``mlkm_core.metrics.score`` (the logic is :mod:`mlkm_assoc.episode_scoring`). Stream tracks
 of an open road (TrackArray MODE_STREAM) are scored per window of stamp time instead
-(parameters ``mode``, ``window``; the logic is :mod:`mlkm_assoc.stream_scoring`).
+(parameters ``mode``, ``window``; the logic is :mod:`mlkm_assoc.stream_scoring`); a message
+of a later tracker run (TrackArray.run: the association node restarted) ends the earlier
+run's tracks as last carried. In mode ``auto`` the node follows its input both ways, as the
+association node does.
 
 * Complete truth: EpisodeInfo ENDED says how many detections each sensor published, and one
   GroundTruth was published for each. The node waits for all of them (truth arriving after
-  the tracks is fine); ``truth_timeout`` seconds after the final tracks it scores with the
-  truth at hand. Such an episode is published with ``truth_complete`` false, counted in
-  ``episodes_incomplete`` and left out of the running mean, as is an episode without any
-  true detection (its accuracy is NaN, never a perfect 1).
+  the tracks is fine) while ground truth keeps arriving, and says on /diagnostics which
+  episode waits for how many; once no ground truth and no input for the episode arrived for
+  ``truth_timeout`` seconds it scores with the truth at hand. Such an episode is published
+  with ``truth_complete`` false, counted in ``episodes_incomplete`` and left out of the
+  running mean. An episode without any true detection at hand has no accuracy: it is not
+  published, only logged and counted (``episodes_unscored``); no score carries NaN.
 * Runs: a restarted source numbers its episodes from 0 again. A new run begins with a layout
   of other content or published later than the current run began, or, for one episode id,
   with an EpisodeInfo of another window or number of targets (or a STARTED published at
@@ -36,13 +41,12 @@ from collections import Counter
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from mlkm_assoc.episode_scoring import EpisodeScoring, ScorerConfig, valid_stamp_ns
 from mlkm_assoc.stream_scoring import STREAM_SPECS, StreamScoring
 from mlkm_ros import conversions as conv
-from mlkm_ros import qos
+from mlkm_ros import lifecycle, qos
 from mlkm_ros.params import ParameterError, ParamSpec, declare_parameters, positive
 from road_sensor_msgs.msg import (
     AssociationScore,
@@ -56,8 +60,8 @@ SPECS = [
     ParamSpec(
         'truth_timeout',
         10.0,
-        'score an episode with the truth at hand when its final tracks arrived this '
-        'long ago and truth is still missing [s]',
+        'score an episode with the truth at hand when truth is still missing and no '
+        'ground truth (nor any input for the episode) arrived for this long [s]',
         1e-3,
         1e6,
         check=positive,
@@ -125,6 +129,7 @@ class ScorerNode(Node):
         stream_mode, window = values.pop('mode'), values.pop('window')
         config = ScorerConfig(**values)
         self._sensor_index: dict[int, int] = {}
+        self._episode_topic = self.resolve_topic_name(qos.EPISODE_TOPIC)
         self._layout_key: tuple | None = None
         self._layout_ns = -1  # publication stamp of the current layout
         self._run_ns = -1  # publication stamp of the message that began this run
@@ -162,6 +167,7 @@ class ScorerNode(Node):
             self._index_of,
             self._reject,
             self._episodes.forget_unannounced,
+            self._episode_source,
         )
         self._timer = self.create_timer(0.5, self._on_timer)
         self._diag_timer = self.create_timer(diag_period, self._publish_diagnostics)
@@ -181,6 +187,15 @@ class ScorerNode(Node):
     @property
     def _buffered(self) -> int:
         return self._episodes._buffered
+
+    def _episode_source(self) -> bool:
+        """Whether the source shows episodes: a /road/episode publisher, or an announced
+        episode still open."""
+        try:
+            publishers = self.count_publishers(self._episode_topic)
+        except Exception:  # noqa: BLE001 - the context is shutting down
+            publishers = 0
+        return publishers > 0 or self._episodes.announced_open()
 
     def _index_of(self, sensor_id: int) -> int:
         """A sensor's index in road order (its id while no layout knows it)."""
@@ -236,21 +251,29 @@ class ScorerNode(Node):
     def _publish_diagnostics(self) -> None:
         rejected = sum(self._rejected.values())
         episodes = self._episodes
-        troubles = episodes.incomplete + episodes.events['episodes_dropped']
-        level, message = DiagnosticStatus.OK, 'scoring'
-        if (rejected, troubles) != self._reported:
-            level, message = (
-                DiagnosticStatus.WARN,
-                ('inputs rejected or episodes scored incomplete/dropped since the last status'),
-            )
-        self._reported = (rejected, troubles)
+        troubles = (
+            episodes.incomplete
+            + episodes.events['episodes_dropped']
+            + episodes.events['episodes_unscored']
+            + self._stream.scorer.unscored
+        )
         values = {
-            **episodes.diagnostics(),
+            **episodes.diagnostics(time.monotonic()),
             'runs': self._runs,
             **{f'rejected_{r}': n for r, n in sorted(self._rejected.items())},
             **dict(sorted(episodes.events.items())),
             **self._stream.diagnostics(),
         }
+        level, message = DiagnosticStatus.OK, 'scoring'
+        if values['episodes_waiting_for_truth']:
+            message = f'waiting for ground truth: {values["truth_waiting"]}'
+        if (rejected, troubles) != self._reported:
+            level, message = (
+                DiagnosticStatus.WARN,
+                'inputs rejected or episodes/windows scored incomplete, dropped or not '
+                'scored since the last status',
+            )
+        self._reported = (rejected, troubles)
         self._diag_pub.publish(
             conv.diagnostics_to_msg(
                 name=self.get_fully_qualified_name(),
@@ -264,20 +287,20 @@ class ScorerNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    try:
-        node = ScorerNode()
-    except ParameterError as exc:
-        print(f'scorer_node: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle): exit 0, no traceback
+    with lifecycle.stop_signals():
+        lifecycle.init_rclpy(args)
+        try:
+            node = ScorerNode()
+        except ParameterError as exc:
+            print(f'scorer_node: {exc}', file=sys.stderr)
+            rclpy.try_shutdown()
+            return 2
+        try:
+            lifecycle.spin(node)
+        finally:
+            node.destroy_node()
+            rclpy.try_shutdown()
     return 0
 
 

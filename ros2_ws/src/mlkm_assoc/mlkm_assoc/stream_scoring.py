@@ -8,10 +8,21 @@ of ``window`` seconds of stamp time:
 * A window is scored once every link in it is committed (``committed_until`` past its end)
   and every detection the tracks hold in it is in a FINAL track (or committed unassigned)
   and has its ground truth; or ``truth_timeout`` seconds (wall time) after it was committed,
-  with what is at hand (truth_complete false). Committed labels never change, so the
+  with what is at hand: ``truth_complete`` false when ground truth is missing (and only
+  then), a log note when tracks were not all FINAL. Committed labels never change, so the
   timeout only matters for the truth. The last window of a road that fell quiet (no tracks
   for ``truth_timeout`` seconds, everything held committed: the association node flushed
   it) is scored as it is, although ``committed_until`` never reaches its end.
+* Runs (TrackArray.run, one per start of the association node's tracker): a message of a
+  later run than any seen ends the earlier ones. Their tracks that were not FINAL count as
+  FINAL with the detections they last carried, their links as committed, and they covered
+  every stamp up to their newest (or their committed_until): a window within that waits
+  only for the current run's detections it holds to be committed, not for the current
+  run's committed_until, which counts on its own. A late message of an ended run is
+  applied with every track FINAL and moves no commit of the current run (counted,
+  ``stream_tracks_of_ended_run``).
+* A window without any true detection (only false alarms, or no truth at hand) has no
+  accuracy: it is not published, only logged and counted (``stream_windows_unscored``).
 * Scores: the core's ``mlkm_core.metrics.score`` on the window's true detections (a true
   detection no track holds counts as unassigned, never correct); cumulatively the core's
   ``accuracy`` over every window scored so far, kept as the track x vehicle contingency
@@ -51,7 +62,7 @@ STREAM_SPECS = [
         'mode',
         'auto',
         'episodes: score each episode; stream: score windows of an open road; auto: stream '
-        'once the association node publishes stream tracks, episodes otherwise [-]',
+        'while stream tracks arrive and the source shows no episodes, episodes otherwise [-]',
         check=lambda v: (
             None
             if v in ('auto', 'episodes', 'stream')
@@ -80,16 +91,17 @@ class WindowScore:
     start_ns: int
     end_ns: int
     method: str
-    score: Score | None  # None: no true detection in the window
-    cumulative_accuracy: float  # NaN while no true detection was scored
+    score: Score | None  # None: no true detection in the window (not published)
+    cumulative_accuracy: float  # 0 while no true detection was scored
     windows_scored: int  # windows with at least one true detection
-    truth_complete: bool
+    truth_complete: bool  # every detection of the window's tracks had its ground truth
+    tracks_final: bool  # every tracked detection of the window was in a FINAL track
     truth_expected: int  # detections of the window's tracks
     truth_received: int  # of them with ground truth
     incomplete: int  # windows scored with incomplete truth so far
     links_published: int
     links_revised: int
-    cumulative_revision_rate: float
+    cumulative_revision_rate: float  # 0 while no link was published
 
 
 class StreamScorer:
@@ -109,43 +121,97 @@ class StreamScorer:
         self.truth: dict[Key, tuple[int, float]] = {}  # -> (target, true velocity)
         self.first: dict[Key, Key | None] = {}  # link first published
         self.link: dict[Key, Key | None] = {}  # link last published
-        self.current: dict[Key, tuple[int, int]] = {}  # -> (label, status)
-        self.committed_until = -(2**63)
+        self.current: dict[Key, tuple[int, int, int]] = {}  # -> (label, status, run)
+        self.run: int | None = None  # the current run (TrackArray.run): the latest seen
+        self.committed_until = -(2**63)  # the current run's committed_until [ns]
+        self._ended_until = -(2**63)  # ended runs covered every stamp before it [ns]
+        self._run_newest = -(2**63)  # the current run's newest stamp [ns]
         self.method = ''
         self.next_start: int | None = None  # start of the next window to score [ns]
         self._committed_at: float | None = None  # wall time the next window was committed
         self.number = 0
         self.windows_scored = 0
-        self.incomplete = 0
+        self.incomplete = 0  # published windows with truth_complete false
+        self.unscored = 0  # windows without any true detection (not published)
+        self.not_final = 0  # windows scored with tracks that were not all FINAL
         self._pairs: Counter[tuple[int, int]] = Counter()  # (track, vehicle) -> detections
         self._true_total = 0  # true detections scored
         self._published_total = 0
         self._revised_total = 0
-        self.last_cumulative = math.nan  # cumulative accuracy at the last scored window
+        self.last_cumulative = 0.0  # cumulative accuracy at the last scored window
         self._last_tracks = -math.inf  # wall time of the last stream tracks [s]
         self.events: Counter[str] = Counter()
 
     # --- inputs ---------------------------------------------------------------------------
     def add_tracks(
-        self, method: str, keys: list[Key], labels, status, committed_ns: int, now: float
-    ) -> None:
-        """The detections of one stream TrackArray, each track's in road order."""
+        self,
+        method: str,
+        keys: list[Key],
+        labels,
+        status,
+        committed_ns: int,
+        now: float,
+        run: int = 0,
+    ) -> str | None:
+        """The detections of one stream TrackArray of tracker run ``run``, each track's in
+        road order. Returns a note for the log when a run ended or an ended run spoke."""
         self.method = method
         self._last_tracks = now
+        note = None
+        if self.run is None or run > self.run:
+            note = self._end_run(run)
+        ended = run < self.run
+        if ended:
+            self.events['tracks_of_ended_run'] += 1
+            note = (
+                f'a late message of run {run}, which ended (the current run is {self.run}): '
+                'its tracks are taken as FINAL'
+            )
         done = self.next_start
         prev_key, prev_label = None, -1
+        newest = -(2**63)
         for key, label, state in zip(keys, labels, status):
             # a track's detections come in road order: each follows the one before it
             link = prev_key if label >= 0 and label == prev_label else None
             prev_key, prev_label = key, label
+            newest = max(newest, key[2])
             if done is not None and key[2] < done:
                 self.events['tracks_after_score'] += 1
                 continue
+            if ended and self.current.get(key, (0, 0, run))[2] > run:
+                continue  # a later run carries it now
             self.first.setdefault(key, link)
             self.link[key] = link
-            self.current[key] = (label, state)
+            self.current[key] = (label, FINAL if ended and label >= 0 else state, run)
             self._start(key[2])
-        self.committed_until = max(self.committed_until, committed_ns)
+        if ended:
+            self._ended_until = max(self._ended_until, committed_ns, newest + 1)
+        else:
+            self.committed_until = max(self.committed_until, committed_ns)
+            self._run_newest = max(self._run_newest, newest)
+        return note
+
+    def _end_run(self, run: int) -> str | None:
+        """A message of a later run: the current run's node is gone. Its tracks that were not
+        FINAL have ended as last carried, its links are all committed, and it covered every
+        stamp up to its newest (the later run began after it). The new run's committed_until
+        counts on its own, from nothing."""
+        old, self.run = self.run, run
+        if old is None:
+            return None
+        self._ended_until = max(self._ended_until, self.committed_until, self._run_newest + 1)
+        self.committed_until = self._run_newest = -(2**63)
+        ended = set()
+        for k, (label, state, r) in self.current.items():
+            if label >= 0 and state != FINAL:
+                ended.add(label)
+                self.current[k] = (label, FINAL, r)
+        self.events['runs_ended'] += 1
+        self.events['tracks_ended_with_run'] += len(ended)
+        return (
+            f'run {run} began: run {old} ended, its {len(ended)} tracks not FINAL are taken '
+            'as FINAL with the detections they last carried'
+        )
 
     def add_truth(self, key: Key, target: int, true_velocity: float) -> str | None:
         """None, or why the message was not kept."""
@@ -163,32 +229,52 @@ class StreamScorer:
             self.next_start = stamp_ns - stamp_ns % self.window_ns
 
     # --- scoring --------------------------------------------------------------------------
-    def ready(self, now: float) -> list[WindowScore]:
-        """Every window that can be scored now, in order."""
+    def ready(self, now: float, force: bool = False) -> list[WindowScore]:
+        """Every window that can be scored now, in order; ``force``: every window held,
+        with what is at hand (the stream ended)."""
         out = []
         while self.next_start is not None:
+            if force and not self.current and not self.truth:
+                break
             end = self.next_start + self.window_ns
-            if self.committed_until < end and not self._quiet(now):
+            if not force and not self._committed(end) and not self._quiet(now):
                 self._committed_at = None
                 break
             if self._committed_at is None:
                 self._committed_at = now
             if self._empty(end):
                 continue
-            complete = self._complete(self.next_start, end)
-            if not complete and now - self._committed_at < self.truth_timeout:
+            truth, final = self._complete(self.next_start, end)
+            waited = force or now - self._committed_at >= self.truth_timeout
+            if not (truth and final) and not waited:
                 break
-            out.append(self._score(self.next_start, end, complete))
+            out.append(self._score(self.next_start, end, truth, final))
             self.next_start = end
             self._committed_at = None
         return out
+
+    def _is_committed(self, key: Key, run: int) -> bool:
+        """An ended run's links are all committed; the current run's below its own
+        committed_until."""
+        return run != self.run or key[2] < self.committed_until
+
+    def _committed(self, end: int) -> bool:
+        """Every link stamped before ``end`` is committed and no uncommitted one can still
+        come: the current run's committed_until is past ``end``; or ended runs covered every
+        stamp before ``end`` and the current run's detections held there are committed."""
+        if self.committed_until >= end:
+            return True
+        if self._ended_until < end:
+            return False
+        return all(self._is_committed(k, v[2]) for k, v in self.current.items() if k[2] < end)
 
     def _quiet(self, now: float) -> bool:
         """No tracks for ``truth_timeout`` and every detection held is committed."""
         if now - self._last_tracks < self.truth_timeout:
             return False
-        stamps = [k[2] for k in self.current]
-        return bool(stamps) and max(stamps) < self.committed_until
+        return bool(self.current) and all(
+            self._is_committed(k, v[2]) for k, v in self.current.items()
+        )
 
     def _empty(self, end: int) -> bool:
         """Skip windows without any detection (a quiet road): move to the next one that has
@@ -196,7 +282,7 @@ class StreamScorer:
         if any(k[2] < end for k in self.current) or any(k[2] < end for k in self.truth):
             return False
         stamps = [k[2] for k in self.current] + [k[2] for k in self.truth]
-        nxt = min(stamps) if stamps else self.committed_until
+        nxt = min(stamps) if stamps else max(self.committed_until, self._ended_until)
         self.next_start = max(end, nxt - nxt % self.window_ns)
         self._committed_at = None
         return True
@@ -204,14 +290,17 @@ class StreamScorer:
     def _window_keys(self, start: int, end: int, source) -> list[Key]:
         return [k for k in source if start <= k[2] < end]
 
-    def _complete(self, start: int, end: int) -> bool:
+    def _complete(self, start: int, end: int) -> tuple[bool, bool]:
+        """(every tracked detection of the window has its truth, every one is in a FINAL
+        track or unassigned)."""
+        truth = final = True
         for k in self._window_keys(start, end, self.current):
-            label, state = self.current[k]
-            if k not in self.truth or (label >= 0 and state != FINAL):
-                return False
-        return True
+            label, state, _ = self.current[k]
+            truth = truth and k in self.truth
+            final = final and (label < 0 or state == FINAL)
+        return truth, final
 
-    def _score(self, start: int, end: int, complete: bool) -> WindowScore:
+    def _score(self, start: int, end: int, complete: bool, final: bool) -> WindowScore:
         tracked = self._window_keys(start, end, self.current)
         truth_keys = self._window_keys(start, end, self.truth)
         labels = {k: self.current[k][0] for k in tracked}
@@ -232,10 +321,12 @@ class StreamScorer:
                 self._true_total += int((d.target >= 0).sum())
                 keep = (d.target >= 0) & (lab >= 0)
                 self._pairs.update(zip(lab[keep].tolist(), d.target[keep].tolist()))
-        if result is not None:
+        if result is None:
+            self.unscored += 1
+        else:
             self.windows_scored += 1
-        if not complete:
-            self.incomplete += 1
+            self.incomplete += not complete
+            self.not_final += not final
         self._published_total += len(tracked)
         self._revised_total += revised
         for source in (self.truth, self.first, self.link, self.current):
@@ -252,20 +343,21 @@ class StreamScorer:
             cumulative_accuracy=self.last_cumulative,
             windows_scored=self.windows_scored,
             truth_complete=complete,
+            tracks_final=final,
             truth_expected=len(tracked),
             truth_received=sum(1 for k in tracked if k in truth_set),
             incomplete=self.incomplete,
             links_published=len(tracked),
             links_revised=revised,
             cumulative_revision_rate=(
-                self._revised_total / self._published_total if self._published_total else math.nan
+                self._revised_total / self._published_total if self._published_total else 0.0
             ),
         )
 
     def cumulative_accuracy(self) -> float:
-        """The core's accuracy over every true detection scored so far (NaN before any)."""
+        """The core's accuracy over every true detection scored so far (0 before any)."""
         if not self._true_total:
-            return math.nan
+            return 0.0
         pairs = list(self._pairs.items())
         counts = np.array([c for _, c in pairs], np.int64)
         tracks = np.repeat(np.array([p[0] for p, _ in pairs], np.int64), counts)
@@ -276,6 +368,14 @@ class StreamScorer:
         return accuracy(labels, targets).accuracy
 
     # --- bookkeeping ----------------------------------------------------------------------
+    def used(self) -> bool:
+        """Whether any stream tracks came."""
+        return bool(self.method) or self.number > 0
+
+    def holds(self) -> bool:
+        """Whether any detection or truth waits to be scored."""
+        return bool(self.current or self.truth)
+
     def held(self) -> dict[str, int]:
         return {
             'stream_buffered_truth': len(self.truth),
@@ -283,20 +383,24 @@ class StreamScorer:
             'stream_contingency_pairs': len(self._pairs),
         }
 
-    def reset_truth(self) -> None:
-        """Forget held truth (the source turned out to have episodes)."""
-        self.truth.clear()
-
 
 class StreamScoring:
     """The scorer node's stream mode: decides which messages are the stream's, feeds a
     :class:`StreamScorer`, publishes one AssociationScore (MODE_STREAM) per window.
 
-    ``mode`` ``stream``: every TrackArray and GroundTruth is the stream's. ``auto``: stream
-    mode begins with the first TrackArray of MODE_STREAM; until then ground truth goes to
-    episodes mode as always and, while no EpisodeInfo was seen, a copy is kept here (the
-    association node needs a moment before its first stream tracks); at the switch
-    ``forget_unannounced`` lets episodes mode drop its copies. ``episodes``: nothing here.
+    ``mode`` ``stream``: every TrackArray and GroundTruth is the stream's. ``episodes``:
+    nothing here. ``auto`` follows the input both ways, as the association node does: stream
+    mode begins with a TrackArray of MODE_STREAM that arrives while the source shows no
+    episodes (``episode_source()`` false: no /road/episode publisher, no announced episode
+    open); an EpisodeInfo, a TrackArray of MODE_EPISODES or a /road/episode publisher switch
+    back to episodes mode at once. Stream tracks arriving in episodes mode (the association
+    node flushes its stream when it switches to episodes) are still scored here, with the
+    truth the stream had. Ground truth goes to the mode the scorer is in; while in episodes
+    mode without an episode source, a copy is kept here too (the association node needs a
+    moment before its first stream tracks), given to the stream at the switch, when
+    ``forget_unannounced`` lets episodes mode drop its own. A stream after an earlier one is
+    a new run: the earlier one's windows are scored with what is at hand, then windows are
+    numbered from 0 again.
     """
 
     def __init__(
@@ -310,44 +414,79 @@ class StreamScoring:
         sensor_index: Callable[[int], int],
         reject: Callable[[str, str], None],
         forget_unannounced: Callable[[], None],
+        episode_source: Callable[[], bool],
     ) -> None:
         self._node = node
         self._publisher = publisher
         self.mode = mode
         self.active = mode == 'stream'
-        self._episodes_seen = False
+        self._source = False  # the source showed episodes at the last look
+        self._copies: dict[Key, tuple[int, float]] = {}  # truth kept for a stream to come
         self._reject = reject
         self._forget_unannounced = forget_unannounced
-        self.scorer = StreamScorer(window, truth_timeout, max_buffered_truth, sensor_index)
+        self._episode_source = episode_source
+        self._make = lambda: StreamScorer(window, truth_timeout, max_buffered_truth, sensor_index)
+        self.scorer = self._make()
+        self.switches = 0
+
+    # --- mode -----------------------------------------------------------------------------
+    def _to_stream(self, now: float) -> None:
+        if self.scorer.used():
+            for w in self.scorer.ready(now, force=True):
+                self._publish(w)
+            self.scorer = self._make()
+            self._node.get_logger().info('a new stream: its windows are numbered from 0')
+        self.active = True
+        self.switches += 1
+        for key, value in self._copies.items():
+            self.scorer.add_truth(key, *value)
+        self._copies.clear()
+        self._forget_unannounced()
+        self._node.get_logger().info('stream tracks: scoring windows of the open road')
+
+    def _to_episodes(self, why: str) -> None:
+        self.active = False
+        self._source = True
+        self.switches += 1
+        self._node.get_logger().info(f'scoring episodes ({why})')
 
     # --- inputs ---------------------------------------------------------------------------
     def take_tracks(self, msg) -> bool:
         """True when the TrackArray was the stream's (handled here)."""
-        if self.mode == 'episodes' or msg.mode != TrackArray.MODE_STREAM:
+        if self.mode == 'episodes':
             return False
-        if not self.active:
-            self.active = True
-            self._forget_unannounced()
-            self._node.get_logger().info('stream tracks: scoring windows of the open road')
+        if msg.mode != TrackArray.MODE_STREAM:
+            if self.mode == 'auto' and self.active:
+                self._to_episodes('tracks of an episode arrived')
+            return False
+        now = time.monotonic()
+        if not self.active and not self._episode_source():
+            self._to_stream(now)
         try:
             d = conv.stream_tracks_from_msg(msg)
-        except ValueError as exc:
+        except (ValueError, OverflowError) as exc:  # overflow: a track id beyond int64
             self._reject('invalid_tracks', f'stream tracks: {exc}')
             return True
         keys = list(zip(d.sensor_ids.tolist(), d.lanes.tolist(), d.stamps_ns.tolist()))
-        self.scorer.add_tracks(
+        note = self.scorer.add_tracks(
             msg.method,
             keys,
             d.labels.tolist(),
             d.status.tolist(),
             d.committed_until_ns,
-            time.monotonic(),
+            now,
+            d.run,
         )
+        if note and d.run < self.scorer.run:
+            self._node.get_logger().warning(note, throttle_duration_sec=2.0)
+        elif note:
+            self._node.get_logger().info(note)
         return True
 
     def take_truth(self, msg) -> bool:
         """True when the GroundTruth was the stream's alone."""
-        if self.mode == 'episodes' or (not self.active and self._episodes_seen):
+        copy = not self.active and not self._source
+        if self.mode == 'episodes' or not (self.active or copy):
             return False
         stamp = msg.header.stamp
         if stamp.sec < 0 or stamp.nanosec >= NS_PER_S:
@@ -355,26 +494,52 @@ class StreamScoring:
                 self._reject('invalid_truth', f'stream truth: invalid time {stamp.sec} s')
             return self.active
         key = (int(msg.sensor_id), int(msg.lane), conv.time_to_ns(stamp))
-        why = self.scorer.add_truth(key, conv.ground_truth_target(msg), float(msg.true_velocity))
-        if why and self.active:
+        value = (conv.ground_truth_target(msg), float(msg.true_velocity))
+        if copy:
+            if key in self._copies or len(self._copies) < self.scorer.max_buffered_truth:
+                self._copies[key] = value
+            return False
+        why = self.scorer.add_truth(key, *value)
+        if why:
             self._reject(why, f'{len(self.scorer.truth)} stream ground-truth messages held')
-        return self.active
+        return True
 
     def episode_info(self) -> None:
-        if not self.active and not self._episodes_seen:
-            self._episodes_seen = True
-            self.scorer.reset_truth()
+        """An EpisodeInfo arrived: the source has episodes."""
+        if self.mode != 'auto':
+            return
+        self._copies.clear()
+        if self.active:
+            self._to_episodes('an EpisodeInfo arrived')
+        self._source = True
 
     # --- output ---------------------------------------------------------------------------
     def tick(self, now: float) -> None:
-        if not self.active:
+        if self.mode == 'episodes':
             return
-        for w in self.scorer.ready(now):
-            self._publish(w)
+        if self.mode == 'auto':
+            self._source = self._episode_source()
+            if self.active and self._source:
+                self._to_episodes('a /road/episode publisher appeared')
+            if self._source:
+                self._copies.clear()
+        if self.active or self.scorer.holds():
+            for w in self.scorer.ready(now):
+                self._publish(w)
 
     def _publish(self, w: WindowScore) -> None:
-        empty = Score(math.nan, 0, 0, math.nan, math.nan, 0, math.nan)
-        s = w.score or empty
+        """One AssociationScore for a window with true detections; a log line for one
+        without (it has no accuracy)."""
+        span = f'window {w.number} [{w.start_ns / NS_PER_S:g}, {w.end_ns / NS_PER_S:g}) s'
+        if w.score is None:
+            self._node.get_logger().warning(
+                f'{span} [{w.method}]: not scored, no true detection at hand '
+                f'({w.truth_received} of {w.truth_expected} tracked detections with ground '
+                'truth); nothing published'
+            )
+            return
+        s = w.score
+        rate = w.links_revised / w.links_published if w.links_published else 0.0
         msg = conv.score_to_msg(
             episode_id=w.number,
             method=w.method,
@@ -392,14 +557,19 @@ class StreamScoring:
         msg.episodes_incomplete = w.incomplete
         msg.links_published = w.links_published
         msg.links_revised = w.links_revised
-        msg.revision_rate = w.links_revised / w.links_published if w.links_published else math.nan
+        msg.revision_rate = rate
         msg.cumulative_revision_rate = w.cumulative_revision_rate
         self._publisher.publish(msg)
-        note = '' if w.truth_complete else ' [truth incomplete]'
+        note = (
+            ''
+            if w.truth_complete
+            else (f' [truth incomplete: {w.truth_received} of {w.truth_expected}]')
+        )
+        if not w.tracks_final:
+            note += ' [tracks not all final]'
         self._node.get_logger().info(
-            f'window {w.number} [{w.start_ns / NS_PER_S:g}, {w.end_ns / NS_PER_S:g}) s '
-            f'[{w.method}]: accuracy {s.accuracy:.4f} ({s.correct}/{s.total}), revision rate '
-            f'{msg.revision_rate:.4f} ({w.links_revised}/{w.links_published}); cumulative '
+            f'{span} [{w.method}]: accuracy {s.accuracy:.4f} ({s.correct}/{s.total}), revision '
+            f'rate {rate:.4f} ({w.links_revised}/{w.links_published}); cumulative '
             f'accuracy {w.cumulative_accuracy:.4f}, revision rate '
             f'{w.cumulative_revision_rate:.4f}{note}'
         )
@@ -407,13 +577,19 @@ class StreamScoring:
     def diagnostics(self) -> dict[str, object]:
         if self.mode == 'episodes':
             return {}
+        sc = self.scorer
         values: dict[str, object] = {
             'stream_active': self.active,
-            'stream_windows_published': self.scorer.number,
-            'stream_windows_scored': self.scorer.windows_scored,
-            'stream_windows_incomplete': self.scorer.incomplete,
-            'stream_cumulative_accuracy': self.scorer.last_cumulative,
-            **self.scorer.held(),
+            'stream_mode_switches': self.switches,
+            'stream_run': '' if sc.run is None else sc.run,
+            'stream_windows_published': sc.windows_scored,
+            'stream_windows_scored': sc.windows_scored,
+            'stream_windows_incomplete': sc.incomplete,
+            'stream_windows_unscored': sc.unscored,
+            'stream_windows_not_final': sc.not_final,
+            'stream_cumulative_accuracy': f'{sc.last_cumulative:.6f}' if sc.windows_scored else '',
+            'stream_truth_copies': len(self._copies),
+            **sc.held(),
         }
         values.update({f'stream_{k}': v for k, v in sorted(self.scorer.events.items())})
         return values
