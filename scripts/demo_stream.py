@@ -67,14 +67,16 @@ def start_stream_graph(
     lag: float,
     window: float,
     *also: tuple[str, ...],
+    timeout: float = 60.0,
 ) -> None:
     """association_node and scorer_node in stream mode, then ``also``; returns once
-    /mlkm/tracks is matched by the scorer and each of ``also``."""
+    /mlkm/tracks is matched by the scorer and each of ``also`` (at most ``timeout`` [s]; a
+    process that exits ends the wait at once)."""
     start_association(
         graph, collector, method, *also,
         association_params=('mode:=stream', f'stream_method:={method}', f'lag:={float(lag)}'),
         scorer_params=('mode:=stream', f'window:={float(window)}'),
-        timeout=60.0,
+        timeout=timeout,
     )  # fmt: skip
 
 

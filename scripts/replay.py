@@ -225,7 +225,7 @@ def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: lis
         collector = ScoreCollector(domain_id, diagnostics=True)
         graph = Graph(domain_id, log_dir)
         try:
-            start_stream_graph(graph, collector, method, args.lag, window)
+            start_stream_graph(graph, collector, method, args.lag, window, timeout=math.inf)
             graph.start('bag_player', 'rosbag_mcap', 'bag_player', *_player_args(bag, args))
             why = collector.spin_until(
                 lambda: (
