@@ -88,7 +88,7 @@ class Detections:
     ``lane`` (index from the right, 0 = rightmost, ``UNKNOWN_LANE`` = -1) and ``length``
     (vehicle length [m], NaN = unknown) are optional per-detection measurements that
     sensors reporting them (loop detectors) fill in; assignment, multiframe and mlkm_robust use
-    them in their link costs (``associators.attributes``).
+    them in their link costs (the cues of ``mlkm_core.model``).
     """
 
     sensor_index: np.ndarray  # int, index into Layout.positions
@@ -182,3 +182,11 @@ def segments(n_sensors: int, segment_size: int) -> list[np.ndarray]:
     return [
         np.arange(s, min(s + segment_size, n_sensors)) for s in range(0, n_sensors, segment_size)
     ]
+
+
+def link_pairs(d: Detections, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Consecutive detections (by sensor) of each track: (earlier, later) indices."""
+    valid = np.flatnonzero(labels >= 0)
+    order = valid[np.lexsort((d.sensor_index[valid], labels[valid]))]
+    same = labels[order[1:]] == labels[order[:-1]]
+    return order[:-1][same], order[1:][same]

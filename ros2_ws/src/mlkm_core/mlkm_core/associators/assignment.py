@@ -15,9 +15,9 @@ time-gated candidate graph) with dummy rows and columns:
 * a track that ends with a single detection is a false alarm: UNASSIGNED (-1);
 * where the data show them, the cost also carries: abrupt speed changes (a two-component
   mixture, ``motion``), an extra travel time per gap between sensors, with its spread in
-  stop-and-go traffic (road works, a queue: ``delays``), and, for loop detectors, the lane and
-  vehicle length (``attributes``) and the order of passage within a lane in queues
-  (``laneorder``; two neighbours of a lane whose links the pass crossed in a queue are given
+  stop-and-go traffic (road works, a queue: ``delays``), and the cues of ``model`` (for loop
+  detectors the lane, the vehicle length and the order of passage within a lane in queues;
+  two neighbours of a lane whose links the pass crossed in a queue are given
   back their order, ``laneorder.restore_order``);
 * a lane change on top of a station, reported by both lanes' loops, keeps one track
   (``linking.merge_double_reports``);
@@ -35,34 +35,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from mlkm_core.associators.base import Associator, canonical_order, register
-from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.laneorder import restore_order
-from mlkm_core.associators.linking import finish_tracks, link
-from mlkm_core.associators.merges import mend_merges
-from mlkm_core.associators.motion import MotionParams
+from mlkm_core.associators.base import register
+from mlkm_core.associators.linking import link
+from mlkm_core.associators.tracking import TrackingAssociator, repaired
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
 
 @register
-class AssignmentAssociator(Associator):
+class AssignmentAssociator(TrackingAssociator):
     name = 'assignment'
-    calibrates = True
 
-    def associate(
-        self,
-        layout: Layout,
-        detections: Detections,
-        n_targets: int,
-        motion: MotionParams | None = None,
+    def track(
+        self, layout: Layout, d: Detections, n_targets: int, p: MotionParams, given: bool
     ) -> np.ndarray:
-        order = canonical_order(detections)
-        d = detections.subset(order)
-        out = np.full(len(d), -1, dtype=np.int64)
-        if len(d):
-            params = motion if motion is not None else estimate_params(layout, d)
-            params = params.on_road(layout.positions, self.config.entries, self.config.exits)
-            raw = link(layout, d, params, 'pairwise')
-            raw = restore_order(layout, d, mend_merges(layout, d, raw, params), params)
-            out[order] = finish_tracks(layout, d, raw, params)
-        return out
+        return repaired(layout, d, link(layout, d, p, 'pairwise'), p)

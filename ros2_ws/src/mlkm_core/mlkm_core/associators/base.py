@@ -19,6 +19,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from mlkm_core.registry import Registry
 from mlkm_core.types import Detections, Layout, segments
 
 
@@ -60,14 +61,6 @@ def canonical_order(detections: Detections) -> np.ndarray:
     different orders).
     """
     return np.lexsort((detections.velocity, detections.stamp, detections.sensor_index))
-
-
-def link_pairs(d: Detections, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Consecutive detections (by sensor) of each track: (earlier, later) indices."""
-    valid = np.flatnonzero(labels >= 0)
-    order = valid[np.lexsort((d.sensor_index[valid], labels[valid]))]
-    same = labels[order[1:]] == labels[order[:-1]]
-    return order[:-1][same], order[1:][same]
 
 
 class Session:
@@ -130,25 +123,19 @@ class Associator(ABC):
         return out
 
 
-_REGISTRY: dict[str, type[Associator]] = {}
+METHODS: Registry[type[Associator]] = Registry('method')
 
 
 def register(cls: type[Associator]) -> type[Associator]:
     """Class decorator: make an associator selectable by its ``name`` everywhere."""
-    if cls.name in _REGISTRY:
-        raise ValueError(f'associator {cls.name!r} registered twice')
-    _REGISTRY[cls.name] = cls
-    return cls
+    return METHODS.add(cls.name, cls)
 
 
 def available_methods() -> list[str]:
-    from mlkm_core import associators  # noqa: F401  (registers the built-in methods)
-
-    return sorted(_REGISTRY)
+    """Every registered method (importing this module first runs the package's
+    ``__init__``, which registers the built-in ones)."""
+    return sorted(METHODS.names())
 
 
 def make_associator(name: str, config: AssociatorConfig | None = None) -> Associator:
-    methods = available_methods()
-    if name not in _REGISTRY:
-        raise ValueError(f'unknown method {name!r}; choose one of {", ".join(methods)}')
-    return _REGISTRY[name](config)
+    return METHODS.get(name)(config)

@@ -19,18 +19,13 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import nnls
 
-from mlkm_core.associators.attributes import (
-    AttributeParams,
-    Attributes,
-    estimate_attributes,
-    has_attributes,
-)
 from mlkm_core.associators.delays import estimate_delay, estimate_gap_spread, gap_links
-from mlkm_core.associators.laneorder import estimate_lane_order, restore_order
+from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.likelihood import sequence_nll, track_sequences
 from mlkm_core.associators.linking import link, relabel
 from mlkm_core.associators.merges import estimate_lane_delays, estimate_yields, mend_merges
-from mlkm_core.associators.motion import FLOOR_T, FLOOR_V, GapDelays, MotionParams
+from mlkm_core.model.catalogue import bind_cues, fit_cues, generic_cues, refined_kinds
+from mlkm_core.model.motion import FLOOR_T, FLOOR_V, GapDelays, MotionParams
 from mlkm_core.types import Detections, Layout
 
 
@@ -132,9 +127,9 @@ _FIT_FIELDS = ('sigma', 'length', 'stamp_noise', 'velocity_noise')
 _JUMP_FIELDS = ('jump_rate', 'jump_sigma')
 #: candidate drifts of the cruise speed [m/s per km] tried against a constant cruise speed
 _DRIFT_GRID = (0.5, 1.0, 2.0, 4.0, 8.0)
-#: least likelihood gain per detection [nats] for the drift: the product's own simulator,
-#: whose targets keep their cruise speed, shows gains up to 0.022 from the model's
-#: approximations alone; car-following traffic (SUMO, 200 vehicles) mostly 0.04 to 0.13
+#: least likelihood gain per detection [nats] for the drift: above what the model's
+#: approximations alone give on traffic whose targets keep their cruise speed, below what
+#: car-following traffic shows (figures: docs/benchmarks.md#simulator-defaults)
 DRIFT_MIN_GAIN = 0.03
 #: candidate changes of a target's speed level between its first two sensors: (probability,
 #: std [m/s]) tried against none
@@ -303,8 +298,6 @@ def _fit_jumps(
     return p
 
 
-#: link passes that refine the in-lane order from their own tracks
-ORDER_ROUNDS = 3
 #: rounds of estimating each law of a merge and mending the tracks with it (the second
 #: estimate, from tracks that follow the first, is the one kept)
 LANE_ROUNDS = 2
@@ -313,14 +306,16 @@ LANE_ROUNDS = 2
 def estimate_params(layout: Layout, d: Detections) -> MotionParams:
     """Self-calibration: pass 1 with generic parameters, then moments, then maximum likelihood.
 
-    With lane or length reported, pass 1 uses them with generic parameters, their own
-    parameters are estimated from its links (``attributes.estimate_attributes``), and a second
-    pairwise pass with everything calibrated gives the tracks of the final estimates.
+    With cues in the data (lane, length, ...), pass 1 uses them with generic parameters, their
+    own parameters are fitted from its links (``model.catalogue.fit_cues``), and a second
+    pairwise pass with everything calibrated gives the tracks of the final estimates; a cue
+    learnt from the very tracks it changes (the order within a lane) is refined over its own
+    rounds of link passes.
     """
     base = MotionParams()
-    with_attributes = has_attributes(d)
-    if with_attributes:
-        base = replace(base, attributes=Attributes(layout, d, AttributeParams()))
+    cues = generic_cues(layout, d)
+    if cues is not None:
+        base = replace(base, cues=cues)
     raw = link(layout, d, base, 'pairwise')
     delay = estimate_delay(layout, d, relabel(raw))
     if delay is not None:
@@ -337,25 +332,17 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
             base = replace(base, delay=delay)
             raw = link(layout, d, base, 'pairwise')
     p = calibrate(layout, d, raw, base)
-    if with_attributes:
-        ap = estimate_attributes(layout, d, relabel(raw))
-        p = replace(p, attributes=Attributes(layout, d, ap))
+    if cues is not None:
+        p = replace(p, cues=bind_cues(layout, d, fit_cues(layout, d, relabel(raw))))
         raw = link(layout, d, p, 'pairwise')
         p = calibrate(layout, d, raw, p)
-        ap = estimate_attributes(layout, d, relabel(raw))
-        p = replace(p, attributes=Attributes(layout, d, ap))
-        order = estimate_lane_order(layout, d, relabel(raw))
-        if order is not None:
-            # a queue: the order within lanes is a cue of its own (``laneorder``)
-            for _ in range(ORDER_ROUNDS):
-                p = replace(p, attributes=Attributes(layout, d, ap, order))
-                raw = link(layout, d, p, 'pairwise')
-                order = estimate_lane_order(layout, d, relabel(raw))
-            p = replace(p, attributes=Attributes(layout, d, ap, order))
+        fitted = fit_cues(layout, d, relabel(raw))
+        p = replace(p, cues=bind_cues(layout, d, fitted))
+        p, raw = _refine_cues(layout, d, p, fitted, raw)
     labels = relabel(raw)
     # the gaps whose travel times scatter beyond the calibrated model (a stop-and-go queue)
     p = estimate_gap_spread(layout, d, labels, fit_motion(layout, d, labels, p))
-    if with_attributes and p.delay is not None and np.any(p.delay.gap_var > 0):
+    if cues is not None and p.delay is not None and np.any(p.delay.gap_var > 0):
         # ... and, among them, the merges (``merges``): first the lanes' own delays, then the
         # delay of the cars that let a merging car in; each estimated from the tracks of the
         # pass with the gaps' spreads, then again from those mended with the first estimate
@@ -368,3 +355,21 @@ def estimate_params(layout: Layout, d: Detections) -> MotionParams:
                     break
                 tracks = restore_order(layout, d, mend_merges(layout, d, raw, p), p)
     return p
+
+
+def _refine_cues(
+    layout: Layout, d: Detections, p: MotionParams, fitted: dict, raw: np.ndarray
+) -> tuple[MotionParams, np.ndarray]:
+    """Fit each cue learnt from the very tracks it changes (``CueKind.rounds``) and refine it
+    over its rounds of link passes; returns the parameters and the last pass's tracks."""
+    for kind in refined_kinds():
+        value = kind.fit(layout, d, relabel(raw))
+        if value is None:
+            continue
+        for _ in range(kind.rounds):
+            p = replace(p, cues=bind_cues(layout, d, {**fitted, kind.name: value}))
+            raw = link(layout, d, p, 'pairwise')
+            value = kind.fit(layout, d, relabel(raw))
+        fitted = {**fitted, kind.name: value}
+        p = replace(p, cues=bind_cues(layout, d, fitted))
+    return p, raw

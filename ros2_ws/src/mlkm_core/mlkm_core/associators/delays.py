@@ -22,9 +22,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from mlkm_core.associators.base import link_pairs
-from mlkm_core.associators.motion import GapDelays, MotionParams, trapezoid_residual
-from mlkm_core.types import Detections, Layout
+from mlkm_core.model.motion import GapDelays, MotionParams, trapezoid_residual
+from mlkm_core.types import Detections, Layout, link_pairs
 
 #: a gap whose first-pass links join fewer than this fraction of its detections is searched
 #: for an extra travel time

@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mlkm_core.associators.base import link_pairs
-from mlkm_core.associators.motion import FLOOR_V, MotionParams, trapezoid_residual
-from mlkm_core.types import Detections, Layout
+from mlkm_core.model.motion import FLOOR_V, MotionParams, trapezoid_residual
+from mlkm_core.types import Detections, Layout, link_pairs
 
 
 def link_residuals(

@@ -5,7 +5,7 @@ the detections of the first ``n_train`` sensors along the road are the labelled 
 ("a portion of the data association has already been identified": the upstream sensors), the
 detections of the remaining, downstream sensors are the test set. Classes are the true target
 ids. (Training on a random subset of sensors instead turns the test into interpolation
-between labelled sensors and gives ~93-96 % at every split, unlike the paper's 68-92 %.)
+between labelled sensors and loses the paper's trend: docs/benchmarks.md.)
 
 Network, as Table II: scikit-learn ``MLPClassifier`` with two hidden layers of 8 neurons,
 ReLU activations, the Adam optimiser and a softmax output with cross-entropy loss (what the

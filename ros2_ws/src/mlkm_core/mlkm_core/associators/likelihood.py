@@ -12,9 +12,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from mlkm_core.associators.attributes import AttributeState
-from mlkm_core.associators.kalman import KalmanModel
-from mlkm_core.associators.motion import MotionParams
+from mlkm_core.model.cues import TrackArrays, take_state
+from mlkm_core.model.link import LinkModel
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
 
@@ -29,17 +29,13 @@ class SequenceState:
     last: np.ndarray  # sensor of the last detection, -1 before the first
     first_sensor: np.ndarray  # sensor of the first detection
     count: np.ndarray  # detections so far
-    attr: AttributeState | None = None  # lane and length state (None: not used)
+    cues: tuple[TrackArrays, ...] | None = None  # state of the cues (None: none bound)
 
     def take(self, rows: np.ndarray) -> SequenceState:
         """The state of the given rows (repeats allowed), in that order."""
         return SequenceState(
-            **{
-                f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[rows]
-                for f in fields(self)
-                if f.name != 'attr'
-            },
-            attr=None if self.attr is None else self.attr.take(rows),
+            **{f.name: getattr(self, f.name)[rows] for f in fields(self) if f.name != 'cues'},
+            cues=None if self.cues is None else take_state(self.cues, rows),
         )
 
 
@@ -54,26 +50,20 @@ def _filter(
 ) -> SequenceState:
     """Run the filters of every row over the columns of ``seqs`` (see ``sequence_nll``)."""
     n_seq, width = seqs.shape
-    m = KalmanModel(params, rows)
-    att = params.attributes
-    att = att.tracker(accumulate=True) if att is not None and att.active else None
+    m = LinkModel(params, 'kalman', rows, cap=4 * params.gate)
     if state is None:
         m.grow(n_seq)
-        if att is not None:
-            att.grow(n_seq)
         out = np.zeros(n_seq)
         last = np.full(n_seq, -1, dtype=np.int64)
         first_sensor = np.zeros(n_seq, dtype=np.int64)
         count = np.zeros(n_seq, dtype=np.int64)
     else:
-        m.load(state.x, state.mean, state.cov, layout.positions[state.first_sensor])
-        if att is not None:
-            att.load(state.attr)
+        m.motion.load(state.x, state.mean, state.cov, layout.positions[state.first_sensor])
+        m.load_cues(state.cues)
         out, last = state.out.copy(), state.last.copy()
         first_sensor, count = state.first_sensor.copy(), state.count.copy()
     count = count + (seqs >= 0).sum(axis=1)
     u_all = 1.0 / d.velocity
-    cap = 4 * params.gate
     for k in range(width):
         col = seqs[:, k]
         live = np.flatnonzero(col >= 0)
@@ -86,26 +76,19 @@ def _filter(
         first = last[live] < 0
         if first.any():
             r0 = live[first]
-            m.start(r0, x[first], t[first], u[first])
-            if att is not None:
-                att.start(r0, det[first])
+            m.start(r0, x[first], t[first], u[first], det[first])
             out[r0] += np.where(birth[r0], params.new_cost, 0.0)
             first_sensor[r0] = s[first]
         nxt = ~first
         if nxt.any():
             r1 = live[nxt]
             pred = m.predict(r1, x[nxt])
-            nll, d2 = m.cost(pred, t[nxt], u[nxt])
-            nll = nll - 0.5 * np.maximum(d2 - cap, 0.0)
-            if att is not None:
-                nll = nll + att.cost(r1, det[nxt])
-                att.update(r1, det[nxt])
+            nll, _ = m.cost(pred, t[nxt], u[nxt], det[nxt])
             out[r1] += nll + (s[nxt] - last[r1] - 1) * params.miss_cost
-            m.update(pred, t[nxt], u[nxt])
+            m.update(pred, t[nxt], u[nxt], det[nxt])
         last[live] = s
-    return SequenceState(
-        m.x, m.mean, m.cov, out, last, first_sensor, count, None if att is None else att.state
-    )
+    mo = m.motion
+    return SequenceState(mo.x, mo.mean, mo.cov, out, last, first_sensor, count, m.cue_state)
 
 
 def sequence_state(

@@ -13,10 +13,10 @@
 * ``by_sensor``: detections grouped per sensor, sorted by stamp.
 * ``link``: the forward pass. It walks the sensors in road order. At each sensor the active
   tracks (last seen at most ``max_skip`` sensors back) are gated in predicted passage time
-  against the detections (the motion model of ``motion``), and the gated pairs are solved by
-  ``match_sparse``: a track left unmatched is a miss (cost -log p_miss per skipped sensor,
-  carried forward with the growing variance of the longer gap), a detection left unmatched
-  starts a new track (cost -log kappa, kappa = clutter density).
+  against the detections (``model.link.LinkModel``: motion and cues), and the gated pairs
+  are solved by ``match_sparse``: a track left unmatched is a miss (cost -log p_miss per
+  skipped sensor, carried forward with the growing variance of the longer gap), a detection
+  left unmatched starts a new track (cost -log kappa, kappa = clutter density).
 * ``join_fragments``: a track the pass ends where no target can leave, joined to one it
   starts downstream where none can enter, when the whole-track cost favours the link.
 * ``relabel``: a track of a single detection is a false alarm and is labelled UNASSIGNED.
@@ -33,7 +33,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from mlkm_core.associators.base import canonical_order
-from mlkm_core.associators.motion import MotionParams, PairwiseModel, make_model
+from mlkm_core.model.length import LengthParams
+from mlkm_core.model.link import LinkModel
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
 
@@ -122,14 +124,13 @@ def link(
 ) -> np.ndarray:
     """Sequential sensor-to-sensor assignment; returns raw track ids (no singleton pruning).
 
-    ``model`` names the motion model (``motion.make_model``) that predicts and scores tracks.
+    ``model`` names the motion model (``link.make_model``) of the link model that predicts and
+    scores tracks.
     """
     n_s = layout.n_sensors
     per_sensor = by_sensor(detections, n_s)
     labels = np.full(len(detections), -1, dtype=np.int64)
-    m = make_model(model, params)
-    att = params.attributes
-    att = att.tracker(accumulate=model != 'pairwise') if att is not None and att.active else None
+    m = LinkModel(params, model)
     last_sensor = np.zeros(0, dtype=np.int64)
     n_tracks = 0
     u_all = 1.0 / detections.velocity
@@ -144,18 +145,14 @@ def link(
             centre, half = m.gate_window(pred)
             r, c = gate_pairs(centre, half, t)
             if r.size:
-                nll, d2 = m.cost(pred.take(r), t[c], u[c])
-                if att is not None:
-                    nll = nll + att.cost(active[r], idx[c])
+                nll, d2 = m.cost(pred.take(r), t[c], u[c], idx[c])
                 skipped = s - 1 - last_sensor[active[r]]
                 w = nll + skipped * params.miss_cost - params.miss_cost - params.new_cost
                 w = np.where(d2 <= params.gate, w, 0.0)
                 mr, mc = match_sparse(r, c, w, active.size, idx.size)
                 if mr.size:
                     tr = active[mr]
-                    m.update(pred.take(mr), t[mc], u[mc])
-                    if att is not None:
-                        att.update(tr, idx[mc])
+                    m.update(pred.take(mr), t[mc], u[mc], idx[mc])
                     last_sensor[tr] = s
                     labels[idx[mc]] = tr
                     matched_d = mc
@@ -165,10 +162,7 @@ def link(
             n_tracks += new.size
             m.grow(new.size)
             last_sensor = np.concatenate([last_sensor, np.full(new.size, s)])
-            m.start(ids, x, t[new], u[new])
-            if att is not None:
-                att.grow(new.size)
-                att.start(ids, idx[new])
+            m.start(ids, x, t[new], u[new], idx[new])
             labels[idx[new]] = ids
     return labels
 
@@ -284,14 +278,9 @@ def join_fragments(
         return out
     pos = layout.positions
     sa, sb = d.sensor_index[ends], d.sensor_index[starts]
-    m = PairwiseModel(params)
+    m = LinkModel(params)
     m.grow(ends.size)
-    m.start(np.arange(ends.size), pos[sa], d.stamp[ends], 1.0 / d.velocity[ends])
-    att = params.attributes
-    att = att.tracker(accumulate=False) if att is not None and att.active else None
-    if att is not None:
-        att.grow(ends.size)
-        att.start(np.arange(ends.size), ends)
+    m.start(np.arange(ends.size), pos[sa], d.stamp[ends], 1.0 / d.velocity[ends], ends)
     rows, cols, weight = [], [], []
     for skip in range(params.max_skip + 1):
         i = np.flatnonzero(sa + 1 + skip < n_s)
@@ -301,9 +290,7 @@ def join_fragments(
         r, c = r[keep], c[keep]
         if r.size == 0:
             continue
-        nll, d2 = m.cost(pred.take(r), d.stamp[starts[c]], 1.0 / d.velocity[starts[c]])
-        if att is not None:
-            nll = nll + att.cost(i[r], starts[c])
+        nll, d2 = m.cost(pred.take(r), d.stamp[starts[c]], 1.0 / d.velocity[starts[c]], starts[c])
         w = nll + skip * params.miss_cost - death[i[r]] - birth[c]
         rows.append(i[r])
         cols.append(c)
@@ -348,8 +335,8 @@ def _twin_test(d: Detections, params: MotionParams):
     k = 3 * math.sqrt(2)
     tol_t = k * max(params.stamp_noise, 0.05) + 0.2
     tol_v = k * max(params.velocity_noise, 0.05)
-    att = params.attributes
-    tol_l = k * max(att.params.length_noise if att is not None else 0.3, 0.05)
+    fitted = None if params.cues is None else params.cues.params.get('length')
+    tol_l = k * max(LengthParams().length_noise if fitted is None else fitted.length_noise, 0.05)
 
     def twins(a: int, cand: np.ndarray) -> np.ndarray:
         dt = np.abs(d.stamp[cand] - d.stamp[a])

@@ -24,11 +24,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from mlkm_core.associators.base import link_pairs
 from mlkm_core.associators.delays import link_residuals, robust_location
 from mlkm_core.associators.linking import gate_pairs, match_sparse
-from mlkm_core.associators.motion import MotionParams, PairwiseModel
-from mlkm_core.types import Detections, Layout
+from mlkm_core.model.link import LinkModel
+from mlkm_core.model.motion import MotionParams
+from mlkm_core.types import Detections, Layout, link_pairs
 
 #: a queue gap gets an extra time per lane where the medians of the lanes' travel-time
 #: residuals lie further apart than this many times the widest lane's spread (SUMO's lane drops:
@@ -120,24 +120,16 @@ def relink_lane_delays(
         if up.size == 0 or down.size == 0:
             continue
         rows, cols, weight = [], [], []
-        attrs = p.attributes.tracker(accumulate=False) if p.attributes is not None else None
-        if attrs is not None and attrs.a.active:
-            attrs.grow(up.size)
-            attrs.start(np.arange(up.size), up)
-        else:
-            attrs = None
         for ln in np.unique(lane[up]):
             i = np.flatnonzero(lane[up] == ln)
-            m = PairwiseModel(replace(p, delay=own.get(int(ln), delay)))
+            m = LinkModel(replace(p, delay=own.get(int(ln), delay)))
             m.grow(up.size)
-            m.start(i, pos[g], d.stamp[up[i]], u[up[i]])
+            m.start(i, pos[g], d.stamp[up[i]], u[up[i]], up[i])
             pred = m.predict(i, pos[g + 1])
             r, c = gate_pairs(*m.gate_window(pred), d.stamp[down])
             if r.size == 0:
                 continue
-            nll, d2 = m.cost(pred.take(r), d.stamp[down[c]], u[down[c]])
-            if attrs is not None:
-                nll = nll + attrs.cost(i[r], down[c])
+            nll, d2 = m.cost(pred.take(r), d.stamp[down[c]], u[down[c]], down[c])
             w = nll - p.miss_cost - p.new_cost
             rows.append(i[r])
             cols.append(c)
@@ -161,8 +153,8 @@ def relink_lane_delays(
 
 #: a car that lets a merging car in gets a delay of its own where the median of such cars'
 #: residuals lies further than this many times the wider spread from that of the other cars of
-#: the continuing lanes (at the lane drops of six congested SUMO seeds they are 0.9, 2.7 and
-#: 4.3 s later on three and within 0.4 s on the others, with spreads from 0.3 s to seconds) ...
+#: the continuing lanes (where they merge, such cars are seconds later or not at all, against
+#: spreads from tenths of a second to seconds: docs/benchmarks.md#simulator-defaults) ...
 YIELD_SEPARATION = 0.5
 #: ... and further than this many standard errors of the difference of the two medians (a
 #: merge passes only tens of cars: a difference of half a spread is often chance)
@@ -248,29 +240,23 @@ class _MergeCosts:
         self.d, self.p, self.g, self.up, self.down = d, p, g, up, down
         self.x = layout.positions
         self.u = 1.0 / d.velocity
-        self.models: dict[tuple[float, float], PairwiseModel] = {}
+        self.models: dict[tuple[float, float], LinkModel] = {}
         self.memo: dict[tuple[tuple[float, float], int, int], float] = {}
-        self.attrs = None
-        if p.attributes is not None and p.attributes.active:
-            self.attrs = p.attributes.tracker(accumulate=False)
-            self.attrs.grow(up.size)
-            self.attrs.start(np.arange(up.size), up)
 
     def __call__(self, law: tuple[float, float], i: int, j: int) -> float:
         key = (law, i, j)
         if key not in self.memo:
             model = self.models.get(law)
             if model is None:
-                model = PairwiseModel(replace(self.p, delay=self.p.delay.with_gap(self.g, *law)))
+                model = LinkModel(replace(self.p, delay=self.p.delay.with_gap(self.g, *law)))
                 model.grow(self.up.size)
                 rows = np.arange(self.up.size)
-                model.start(rows, self.x[self.g], self.d.stamp[self.up], self.u[self.up])
+                model.start(rows, self.x[self.g], self.d.stamp[self.up], self.u[self.up], self.up)
                 self.models[law] = model
             r, c = np.array([i]), np.array([self.down[j]])
-            nll, d2 = model.cost(model.predict(r, self.x[self.g + 1]), self.d.stamp[c], self.u[c])
+            pred = model.predict(r, self.x[self.g + 1])
+            nll, d2 = model.cost(pred, self.d.stamp[c], self.u[c], c)
             cost = float(nll[0]) if d2[0] <= self.p.gate else np.inf
-            if self.attrs is not None:
-                cost += float(self.attrs.cost(r, c)[0])
             self.memo[key] = cost
         return self.memo[key]
 

@@ -37,14 +37,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from mlkm_core.associators.base import Associator, canonical_order, register
-from mlkm_core.associators.calibration import estimate_params
+from mlkm_core.associators.base import register
 from mlkm_core.associators.kmeans import kmeans_labels
-from mlkm_core.associators.laneorder import restore_order
-from mlkm_core.associators.linking import finish_tracks, match_sparse
-from mlkm_core.associators.merges import mend_merges
+from mlkm_core.associators.linking import match_sparse
 from mlkm_core.associators.mlkm import detect_errors
-from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.associators.tracking import TrackingAssociator, repaired
+from mlkm_core.model.link import LinkModel
+from mlkm_core.model.motion import MotionParams, PairwiseModel
 from mlkm_core.types import Detections, Layout, segments
 
 
@@ -62,29 +61,25 @@ def _pair_weights(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dense gated weights between n1 'ends' and n2 detections at position x2 (or x2 < x1).
 
-    ``det1``, ``det2``: the detections' indices in the data ``p.attributes`` was built on, to add
-    the lane and length terms (``attributes``) when they are known."""
+    ``det1``, ``det2``: the detections' indices in the data ``p.cues`` were bound to, to add
+    the cues' costs (lane, length, ...) when both are given."""
     n1, n2 = t1.size, t2.size
     r = np.repeat(np.arange(n1), n2)
     c = np.tile(np.arange(n2), n1)
-    m = PairwiseModel(p)
-    m.grow(n1)
+    rows = np.arange(n1)
     if np.all(x2 >= x1):
-        m.start(np.arange(n1), x1, t1, u1)
-        nll, d2 = m.cost(m.predict(r, x2), t2[c], u2[c])
+        m = LinkModel(p)
+        m.grow(n1)
+        m.start(rows, x1, t1, u1, det1)
+        nll, d2 = m.motion_cost(m.predict(r, x2), t2[c], u2[c])
     else:  # backward: mirror the road (time and position change sign), extra times too
-        if p.delay is not None:
-            m = PairwiseModel(replace(p, delay=p.delay.mirrored()))
-            m.grow(n1)
-        m.start(np.arange(n1), -x1, -t1, u1)
-        nll, d2 = m.cost(m.predict(r, -x2), -t2[c], u2[c])
+        m = LinkModel(p if p.delay is None else replace(p, delay=p.delay.mirrored()))
+        m.grow(n1)
+        m.start(rows, -x1, -t1, u1, det1)
+        nll, d2 = m.motion_cost(m.predict(r, -x2), -t2[c], u2[c])
     extra = 0.0 if skipped is None else skipped[r] * p.miss_cost
-    att = p.attributes
-    if att is not None and att.active and det1 is not None and det2 is not None:
-        tr = att.tracker(accumulate=False)
-        tr.grow(n1)
-        tr.start(np.arange(n1), det1)
-        extra = extra + tr.cost(r, det2[c])
+    if det1 is not None and det2 is not None:
+        extra = extra + m.cue_cost(r, det2[c])
     w = nll + extra - p.miss_cost - p.new_cost
     return r, c, np.where(d2 <= p.gate, w, 0.0)
 
@@ -122,7 +117,7 @@ def correct_by_assignment(
 ) -> np.ndarray:
     """Layer 2 correction of the flagged sensors, one-to-one with dummies (module doc).
 
-    ``glob`` maps the indices of ``d`` to those of the data ``p.attributes`` was built on."""
+    ``glob`` maps the indices of ``d`` to those of the data ``p.cues`` were bound to."""
     labels = labels.copy()
     if not flagged or labels.size == 0:
         return labels
@@ -188,9 +183,8 @@ def correct_by_assignment(
 
 
 @register
-class RobustMLKM(Associator):
+class RobustMLKM(TrackingAssociator):
     name = 'mlkm_robust'
-    calibrates = True
 
     def solve_segment(
         self,
@@ -201,7 +195,7 @@ class RobustMLKM(Associator):
         glob: np.ndarray | None = None,
     ) -> np.ndarray:
         """Layers 1 and 2 on one segment (``d`` in canonical order): local cluster labels;
-        ``glob`` maps ``d``'s indices to those ``p.attributes`` was built on."""
+        ``glob`` maps ``d``'s indices to those ``p.cues`` were bound to."""
         labels, _ = kmeans_labels(
             np.column_stack([d.velocity, d.stamp]), n_targets, 'k-means++', self.config.seed
         )
@@ -210,20 +204,9 @@ class RobustMLKM(Associator):
         labels = correct_by_assignment(layout.positions, d, labels, flagged, p, glob)
         return np.unique(labels, return_inverse=True)[1].reshape(-1)
 
-    def associate(
-        self,
-        layout: Layout,
-        detections: Detections,
-        n_targets: int,
-        motion: MotionParams | None = None,
+    def track(
+        self, layout: Layout, d: Detections, n_targets: int, p: MotionParams, given: bool
     ) -> np.ndarray:
-        order = canonical_order(detections)
-        d = detections.subset(order)
-        out = np.full(len(d), -1, dtype=np.int64)
-        if len(d) == 0:
-            return out
-        p = motion if motion is not None else estimate_params(layout, d)
-        p = p.on_road(layout.positions, self.config.entries, self.config.exits)
         pos = layout.positions
         u = 1.0 / d.velocity
         track = np.full(len(d), -1, dtype=np.int64)
@@ -280,6 +263,4 @@ class RobustMLKM(Associator):
                 end_det[ids[k]] = int(last[k])
                 end_seg[ids[k]] = e
             track[idx] = ids[local]
-        track = restore_order(layout, d, mend_merges(layout, d, track, p), p)
-        out[order] = finish_tracks(layout, d, track, p)
-        return out
+        return repaired(layout, d, track, p)

@@ -33,9 +33,9 @@ a ``DegradedResultWarning``.
 
 Why this and not a min-cost flow or a full multi-dimensional assignment: the flow needs
 pairwise (Markov) edge costs, which cannot carry the learnt cruise speed, and the S-D
-assignment is NP-hard; on seeded data the forward Kalman pass alone removed about a third of
-the pairwise errors in clutter and the local search most of the rest, at a cost linear in the
-number of detections (gating keeps every assignment block and the candidate set small).
+assignment is NP-hard; the forward Kalman pass removes part of the pairwise errors in clutter
+and the local search most of the rest (docs/benchmarks.md), at a cost linear in the number of
+detections (gating keeps every assignment block and the candidate set small).
 """
 
 from __future__ import annotations
@@ -46,26 +46,18 @@ from dataclasses import replace
 
 import numpy as np
 
-from mlkm_core.associators.base import (
-    Associator,
-    DegradedResultWarning,
-    canonical_order,
-    link_pairs,
-    register,
-)
-from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.laneorder import restore_order
+from mlkm_core.associators.base import DegradedResultWarning, register
 from mlkm_core.associators.likelihood import sequence_nll, total_nll, track_sequences
-from mlkm_core.associators.linking import finish_tracks, link, relabel
-from mlkm_core.associators.merges import mend_merges
-from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.associators.linking import link, relabel
 from mlkm_core.associators.search import refine
-from mlkm_core.types import Detections, Layout
+from mlkm_core.associators.tracking import TrackingAssociator, repaired
+from mlkm_core.model.motion import MotionParams, PairwiseModel
+from mlkm_core.types import Detections, Layout, link_pairs
 
 #: NLL per link [nats] by which the Kalman model may trail the pairwise model on the pairwise
-#: model's own tracks (which favour it) and still be used: on SUMO free-flow traffic it trails
-#: by at most 0.15 and its search still gains; in stop-and-go traffic it mostly trails by 0.22
-#: to 1.4 (where it trails by less, its search gains there too)
+#: model's own tracks (which favour it) and still be used: in free flow it trails by less and
+#: its search gains; in stop-and-go traffic it mostly trails by more, and its likelihood would
+#: steer the search wrong
 FIT_MARGIN = 0.2
 #: above this many detections the search starts from the Kalman pass only (cost; the second
 #: start matters where few detections make the self-calibration noisy)
@@ -82,7 +74,7 @@ def kalman_fits(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
     speed the target reverts to) holds; where it does not (stop-and-go traffic), its likelihood
     would steer the local search to wrong exchanges.
     """
-    p = replace(params, attributes=None)
+    p = replace(params, cues=None)
     a, b = link_pairs(d, labels)
     if a.size < 10:
         return True
@@ -102,45 +94,30 @@ def kalman_fits(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
 
 
 @register
-class MultiFrameAssociator(Associator):
+class MultiFrameAssociator(TrackingAssociator):
     name = 'multiframe'
-    calibrates = True
 
-    def associate(
-        self,
-        layout: Layout,
-        detections: Detections,
-        n_targets: int,
-        motion: MotionParams | None = None,
+    def track(
+        self, layout: Layout, d: Detections, n_targets: int, params: MotionParams, given: bool
     ) -> np.ndarray:
-        order = canonical_order(detections)
-        d = detections.subset(order)
-        out = np.full(len(d), -1, dtype=np.int64)
-        if len(d) == 0:
-            return out
-        params = motion if motion is not None else estimate_params(layout, d)
-        params = params.on_road(layout.positions, self.config.entries, self.config.exits)
         budget = self.config.search_budget
         with np.errstate(all='ignore'):
-            pairwise = link(layout, d, params, 'pairwise')
-            pairwise = mend_merges(layout, d, pairwise, params)
-            pairwise = restore_order(layout, d, pairwise, params)
+            pairwise = repaired(layout, d, link(layout, d, params, 'pairwise'), params)
             fits = kalman_fits(layout, d, relabel(pairwise), params)
         if not fits:
             warnings.warn(
                 'multiframe: the Kalman model predicts the tracks worse than the pairwise model '
                 '(e.g. stop-and-go traffic); returning the pairwise assignment',
                 DegradedResultWarning,
-                stacklevel=2,
+                stacklevel=3,
             )
-            out[order] = finish_tracks(layout, d, pairwise, params)
-            return out
+            return pairwise
         # local search from two starting points (the Kalman and the pairwise forward pass);
         # keep the more likely result under the Kalman model
         best, best_nll = None, math.inf
         # the second start guards against a noisy self-calibration on few detections; a model
         # calibrated elsewhere (``motion``, the stream's carried model) does not need it
-        dual = motion is None and len(d) <= DUAL_START_MAX
+        dual = not given and len(d) <= DUAL_START_MAX
         starts = ('kalman', 'pairwise') if dual else ('kalman',)
         with np.errstate(all='ignore'):  # a non-finite score only disqualifies a start
             for model in starts:
@@ -151,7 +128,7 @@ class MultiFrameAssociator(Associator):
                         f'multiframe: the local search from the {model} pass stopped at its '
                         f'budget of {budget} candidates; the result is the best found within it',
                         DegradedResultWarning,
-                        stacklevel=2,
+                        stacklevel=3,
                     )
                 nll = total_nll(layout, d, result.labels, params)
                 if math.isfinite(nll) and nll < best_nll:
@@ -161,8 +138,7 @@ class MultiFrameAssociator(Associator):
                 'multiframe: no starting point has a finite likelihood under the calibrated '
                 'Kalman model (e.g. near-zero speeds); returning the pairwise assignment',
                 DegradedResultWarning,
-                stacklevel=2,
+                stacklevel=3,
             )
             best = pairwise
-        out[order] = finish_tracks(layout, d, best, params)
-        return out
+        return best

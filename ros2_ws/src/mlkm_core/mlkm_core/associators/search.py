@@ -28,7 +28,7 @@ import numpy as np
 
 from mlkm_core.associators.likelihood import sequence_nll, sequence_state
 from mlkm_core.associators.linking import by_sensor, gate_pairs
-from mlkm_core.associators.motion import MotionParams, PairwiseModel
+from mlkm_core.model.motion import MotionParams, PairwiseModel
 from mlkm_core.types import Detections, Layout
 
 #: exchange lengths tried for each candidate: the whole tail (0) or 1, 2, 3, 5 sensors

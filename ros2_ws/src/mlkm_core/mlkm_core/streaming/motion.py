@@ -1,5 +1,5 @@
 """The tracker's own use of the motion model: the immediate link, the end of a track and the
-calibration on the stream's history (pairwise model, ``mlkm_core.associators.motion``)."""
+calibration on the stream's history (pairwise model, ``mlkm_core.model.motion``)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.motion import (
+from mlkm_core.model.motion import (
     FLOOR_T,
     FLOOR_V,
     LOG2PI,

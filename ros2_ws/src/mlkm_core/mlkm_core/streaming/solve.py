@@ -6,8 +6,8 @@ caller, a thread, another process) and the tracker applies the solution at its b
 ``solve`` is a function of the problem alone, so where and when it runs never changes the
 committed association.
 
-Calibration is the costliest part of a solve (about two thirds of a ``multiframe`` window in
-free flow), and traffic changes slowly: a window of a method that calibrates its motion model
+Calibration is the costliest part of a solve (docs/benchmarks.md#stream-tracker-settings),
+and traffic changes slowly: a window of a method that calibrates its motion model
 on its input (``Associator.calibrates``) either calibrates (and returns the model as a
 ``CarriedModel``) or is given the model of the last calibrating window, carried over to its
 own detections. A model that learnt the order of passage within lanes (a queue) is bound to
@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 
 from mlkm_core.associators import make_associator
-from mlkm_core.associators.attributes import AttributeParams, Attributes
 from mlkm_core.associators.base import AssociatorConfig, canonical_order
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.motion import MotionParams
+from mlkm_core.model.catalogue import bind_cues
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.streaming.motion import MIN_CALIBRATION, calibrate_on
 from mlkm_core.streaming.window import solve_window
 from mlkm_core.types import Detections, Layout
@@ -35,24 +35,24 @@ from mlkm_core.types import Detections, Layout
 class CarriedModel:
     """A method's calibrated motion model, free of the detections it was calibrated on."""
 
-    params: MotionParams  # attributes None
-    attributes: AttributeParams | None  # lane and length parameters (None: not used)
-    reusable: bool  # False: it holds a lane order learnt from its own detections
+    params: MotionParams  # cues None
+    cues: dict[str, Any] | None  # the cues' parameters by name (None: no cue)
+    reusable: bool  # False: a cue holds what it learnt from its own detections
 
     @staticmethod
     def of(params: MotionParams) -> CarriedModel:
-        att = params.attributes
+        cues = params.cues
         return CarriedModel(
-            replace(params, attributes=None),
-            None if att is None else att.params,
-            att is None or att.order is None,
+            replace(params, cues=None),
+            None if cues is None else cues.carried(),
+            cues is None or cues.reusable,
         )
 
     def bind(self, layout: Layout, d: Detections) -> MotionParams:
         """The model for the detections ``d`` (in the order the associator will use)."""
-        if self.attributes is None:
+        if self.cues is None:
             return self.params
-        return replace(self.params, attributes=Attributes(layout, d, self.attributes))
+        return replace(self.params, cues=bind_cues(layout, d, self.cues))
 
 
 @dataclass(frozen=True)

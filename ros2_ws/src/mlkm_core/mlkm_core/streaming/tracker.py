@@ -5,50 +5,24 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
-from mlkm_core.associators.motion import MotionParams
-from mlkm_core.streaming.book import COUNTERS, Det, as_detections, canon
+from mlkm_core.model.motion import MotionParams
+from mlkm_core.streaming.book import COUNTERS, Det, canon
 from mlkm_core.streaming.config import (
     StreamConfig,
     StreamUpdate,
 )
-from mlkm_core.streaming.motion import LinkCost
-from mlkm_core.streaming.revise import Revisions
-from mlkm_core.streaming.solve import CarriedModel, WindowProblem, WindowSolution, solve
+from mlkm_core.streaming.snapshot import PreparedWindow, WindowSnapshots
+from mlkm_core.streaming.solve import CarriedModel, WindowSolution, solve
 from mlkm_core.streaming.window import owners
 from mlkm_core.types import UNKNOWN_LANE, Layout
 
-#: methods that calibrate their motion model on their input (``Associator.calibrates``): their
-#: calibrating windows get the detections of recently ended tracks as context (the K-means
-#: methods would cluster the context too), the windows in between the model carried over, and
-#: the immediate link uses the same model
-CONTEXT_METHODS = ('assignment', 'multiframe', 'mlkm_robust')
-#: ``anchor_track`` of a context row in a window solve
-CONTEXT = -2
 #: Most due boundaries left unsolved while ``deferring`` (then solves go on regardless) [-].
 MAX_DEFERRED = 30
 
 
-@dataclass
-class _Prepared:
-    """A boundary's window, snapshotted for its solve, and what applying the solution needs."""
-
-    k: int | None  # boundary index; None: a flush's window (everything)
-    bound: float  # [s]
-    cutoff: float  # [s] detections before it are committed by this solve
-    window: list[Det]
-    problem: WindowProblem | None = None  # None: an empty window (only ends tracks)
-    anchor_track: np.ndarray | None = None
-    last: np.ndarray | None = None
-    occupied: dict | None = None
-    n_anchors: int = 0
-
-
-class StreamTracker(Revisions):
+class StreamTracker(WindowSnapshots):
     """Associates an endless stream of detections into tracks with a fixed commit lag."""
 
     def __init__(
@@ -64,46 +38,22 @@ class StreamTracker(Revisions):
         then only snapshots a due window and submits it, and ``push`` and ``poll`` apply
         finished solves in boundary order. None: each solve runs inside the ``push`` whose
         stamp made its boundary due. The committed association is the same either way."""
-        super().__init__(layout.n_sensors, config.confirm_count)
-        self.layout = layout
-        self.config = config
+        super().__init__(layout, config, entries, exits)
         self._executor = executor
-        self._inflight: tuple[_Prepared, Any] | None = None
+        self._inflight: tuple[PreparedWindow, Any] | None = None
         # solves dropped while overloaded that the executor may still be running: no new one
         # is submitted behind them, so the executor's queue never grows
         self._dropped: list[Any] = []
         self._overloaded = False
         self._since: list[int] = []  # keys pushed since the in-flight window was snapshotted
         self._late_before = -math.inf  # pushes stamped before it are late
-        pos = layout.positions
-        n_s = layout.n_sensors
-        # a station right after an on-ramp (or the first) may see births; a station right
-        # before an off-ramp may be the last one a vehicle passes
-        self._after_entry = np.zeros(n_s, bool)
-        self._after_entry[0] = True
-        self._before_exit = np.zeros(n_s, bool)
-        self._before_exit[-1] = True
-        for name, values in (('entries', entries), ('exits', exits)):
-            for x in values:
-                if not math.isfinite(float(x)):
-                    raise ValueError(f'{name} positions must be finite, got {x!r}')
-        for x in entries:
-            s = int(np.searchsorted(pos, float(x)))
-            if s < n_s:
-                self._after_entry[s] = True
-        for x in exits:
-            s = int(np.searchsorted(pos, float(x))) - 1
-            if s >= 0:
-                self._before_exit[s] = True
         self._context: list[tuple[float, tuple, Det]] = []  # (end stamp, canon, det), sorted
         self._history: deque = deque(maxlen=config.calibration_size)
-        self._params = MotionParams()
         self._calibrated_at: int | None = None
         # rows the carried model was calibrated on: one calibrated on fewer than a full
         # context (a road filling up) is not carried, the next window calibrates again
         self._calibrated_rows = 0
         self._model: CarriedModel | None = None  # the method's, from its last calibrating solve
-        self._cost: LinkCost | None = None  # the immediate link's cost under _params
         self._next_k: int | None = None
         self._solved = False
         self._newest = -math.inf
@@ -244,63 +194,6 @@ class StreamTracker(Revisions):
             raise ValueError(f'detection refused: {problem}')
         return key, sensor_index, stamp, velocity
 
-    # ----------------------------------------------------------------- immediate link
-    def _link_cost(self) -> LinkCost:
-        """The pairwise model's link cost under the current motion parameters."""
-        if self._cost is None or self._cost.p is not self._params:
-            self._cost = LinkCost(self._params, self.layout)
-        return self._cost
-
-    def _tail_due(self, tail: Det) -> float:
-        """A tail takes no new detection once every station it could be linked to (1 to
-        1 + max_skip on) is past the gate, and it is older than the stamp noise's gate
-        before any new one (the downstream candidates of ``_link_now``); computed with the
-        parameters of the moment."""
-        p = self._params
-        late = tail.stamp + 6 * math.sqrt(2) * p.stamp_noise
-        to = min(tail.sensor + 1 + p.max_skip, self.layout.n_sensors - 1)
-        if to == tail.sensor:
-            return late
-        return max(late, self._link_cost().due((tail.sensor, tail.stamp, tail.velocity), to))
-
-    def _link_now(self, d: Det) -> tuple[int, int]:
-        """(track, key of the detection ``d`` follows in it) by the gated pairwise prediction,
-        or (-1, -1) for a new track. Candidates: the open tracks whose latest detection lies
-        1 to 1 + max_skip stations upstream, and those whose latest detection lies up to that
-        far downstream but that have no detection at d's station (stamps out of road order
-        under noise, or a miss filled in; not one that passed there more than the stamp
-        noise's gate before d), predicted from their detection just upstream."""
-        p = self._params
-        weight = self._link_cost().weight
-        self._sleep_tails(self._newest - self.config.reorder_tolerance)
-        s = d.sensor
-        earliest = d.stamp - 6 * math.sqrt(2) * p.stamp_noise
-        birth = p.miss_cost if self._after_entry[s] else p.new_cost
-        best, best_w = (-1, -1), 0.0
-        dets = self._dets
-        for j in range(max(0, s - 1 - p.max_skip), min(self.layout.n_sensors, s + 2 + p.max_skip)):
-            if j == s:
-                continue
-            for tid in self._tails[j]:
-                tail = dets[self._tail_of[tid][0]]
-                if j < s:
-                    if tail.stamp >= d.stamp:
-                        continue
-                else:
-                    if tail.stamp < earliest:
-                        continue
-                    members = [dets[k] for k in self._tracks[tid]]
-                    if any(m.sensor == s for m in members):
-                        continue
-                    up = [m for m in members if m.sensor < s]
-                    if not up:
-                        continue
-                    tail = max(up, key=lambda m: (m.sensor, m.stamp))
-                w = weight((tail.sensor, tail.stamp, tail.velocity), s, d.stamp, d.velocity, birth)
-                if w < best_w:  # the cheapest (the first of equals), if cheaper than none
-                    best, best_w = (tid, tail.key), w
-        return best
-
     # ----------------------------------------------------------------- revision and commit
     def _advance(self, wait: bool = False) -> None:
         """Solve every boundary the newest stamp has passed by the reorder tolerance, in
@@ -380,7 +273,7 @@ class StreamTracker(Revisions):
         self._finalize(bound, k is None)
         self._overloaded = True
 
-    def _run(self, prepared: _Prepared, wait: bool) -> None:
+    def _run(self, prepared: PreparedWindow, wait: bool) -> None:
         """Solve a snapshotted window: at once without an executor (or for an empty window),
         else submitted (and, with ``wait``, applied once done)."""
         if prepared.problem is None or self._executor is None:
@@ -399,85 +292,14 @@ class StreamTracker(Revisions):
             self._inflight = None
             self._finish(prepared, self._result(prepared, future))
 
-    def _result(self, prepared: _Prepared, future) -> WindowSolution:
+    def _result(self, prepared: PreparedWindow, future) -> WindowSolution:
         try:
             return future.result()
         except Exception:  # noqa: BLE001 - the executor failed it: solve here (same result)
             self._stats['executor_errors'] += 1
             return solve(prepared.problem)
 
-    def _anchors(self) -> list[tuple[Det, int, bool]]:
-        """(detection, track, is the track's last) of each open track's last committed ones."""
-        out = []
-        depth = self.config.anchor_depth
-        for tid, members in self._tracks.items():
-            if not self._n_committed[tid]:
-                continue
-            done = sorted(
-                (self._dets[k] for k in members if k not in self._pending),
-                key=lambda d: (d.sensor, d.stamp),
-            )[-depth:]
-            out += [(d, tid, i == len(done) - 1) for i, d in enumerate(done)]
-        return out
-
-    def _prepare(self, k: int | None) -> _Prepared:
-        """Snapshot the window below boundary k (None: everything, at a flush) with its
-        anchors and context: the problem of its solve, a function of the committed state and
-        of the detections stamped before the boundary."""
-        c = self.config
-        final = k is None
-        bound = math.inf if final else k * c.solve_interval
-        cutoff = math.inf if final else bound - c.lag
-        window = sorted(
-            (self._dets[key] for key in self._pending if self._dets[key].stamp < bound),
-            key=canon,
-        )
-        self._solved = True
-        if not final:
-            self._late_before = max(self._late_before, cutoff)
-        prepared = _Prepared(k, bound, cutoff, window)
-        if not window:
-            return prepared
-        anchors = sorted(self._anchors(), key=lambda a: canon(a[0]))
-        calibrates = c.method in CONTEXT_METHODS
-        carry = (
-            calibrates
-            and not final
-            and self._model is not None
-            and self._model.reusable
-            and self._calibrated_rows >= c.context_size
-            and k - self._calibrated_at < c.calibration_every
-        )
-        context = [e[2] for e in self._context] if calibrates and not carry else []
-        anchors = [(d, CONTEXT, False) for d in context] + anchors
-        rows = [a[0] for a in anchors] + window
-        calibration = None
-        if (
-            not calibrates
-            and not final
-            and (self._calibrated_at is None or k - self._calibrated_at >= c.calibration_every)
-        ):
-            calibration = np.array(
-                list(self._history) + [(d.sensor, d.stamp, d.velocity) for d in window], float
-            ).reshape(-1, 3)
-        prepared.problem = WindowProblem(
-            c.method,
-            c.associator_config(),
-            self.layout,
-            as_detections(rows),
-            calibration,
-            self._model if carry else None,
-        )
-        prepared.n_anchors = len(anchors)
-        prepared.anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)
-        prepared.last = np.array([a[2] for a in anchors] + [False] * len(window), bool)
-        prepared.occupied = {
-            tid: {self._dets[k].sensor for k in self._tracks[tid] if k not in self._pending}
-            for tid in set(prepared.anchor_track[: len(anchors)].tolist()) - {CONTEXT}
-        }
-        return prepared
-
-    def _finish(self, prepared: _Prepared, solution: WindowSolution | None) -> None:
+    def _finish(self, prepared: PreparedWindow, solution: WindowSolution | None) -> None:
         """Apply a window's solution: move its detections to the tracks of the solve, commit
         what fell out of the lag, finalise the tracks that ended and link again at once the
         detections pushed since the snapshot whose tracks the solve changed."""

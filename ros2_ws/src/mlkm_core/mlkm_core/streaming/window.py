@@ -18,7 +18,7 @@ import numpy as np
 
 from mlkm_core.associators.base import Associator, DegradedResultWarning, canonical_order
 from mlkm_core.associators.linking import link
-from mlkm_core.associators.motion import MotionParams
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mlkm_core.associators.motion import (
+from mlkm_core.model.motion import (
     FLOOR_T,
     FLOOR_V,
     LOG2PI,
@@ -28,6 +28,7 @@ class KalmanModel(MotionModel):
     """
 
     name = 'kalman'
+    keeps_history = True
 
     def __init__(self, params: MotionParams, rows: dict[str, np.ndarray] | None = None) -> None:
         super().__init__(params)

@@ -9,7 +9,7 @@ sigma_u = sigma * m^2. Stamps and speeds carry Gaussian noise sigma_t, sigma_v.
 A :class:`MotionModel` holds the state of many tracks (arrays indexed by track id) and offers
 the few operations the linker and the likelihood need: start tracks, predict them to a
 position, a gating window, the cost of a measurement given a prediction, and the update.
-Two models, chosen by name (:func:`make_model`):
+Two models, chosen by name (``link.make_model``):
 
 * ``pairwise`` (:class:`PairwiseModel`, used by ``assignment``): a track is its last
   detection. The cost of linking it to a detection at the next sensor is the Gaussian NLL of
@@ -36,12 +36,12 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from mlkm_core.associators.attributes import Attributes
+from mlkm_core.model.cues import CueSet
+from mlkm_core.registry import Registry
 
 LOG2PI = math.log(2.0 * math.pi)
 FLOOR_T = 1e-3  # [s] floor of sigma_t (paper mode has exact stamps)
@@ -153,8 +153,8 @@ class MotionParams:
     # extra travel time of the gaps between consecutive sensors that the speeds measured at
     # their ends do not show (road works, a queue between two sensors); None: none
     delay: GapDelays | None = field(default=None, compare=False, repr=False)
-    # lane and length evidence of the detections being associated (None: not used)
-    attributes: Attributes | None = field(default=None, compare=False, repr=False)
+    # the cues (lane, length, ...) bound to the detections being associated (None: none)
+    cues: CueSet | None = field(default=None, compare=False, repr=False)
 
     @staticmethod
     def road_openings(
@@ -279,6 +279,8 @@ class MotionModel(ABC):
     """State of many tracks under one motion model; tracks are ids 0..n-1 (see ``grow``)."""
 
     name: ClassVar[str]
+    #: a track is its whole history (a filter), not just its last detection
+    keeps_history: ClassVar[bool] = False
 
     def __init__(self, params: MotionParams) -> None:
         self.p = params
@@ -312,24 +314,13 @@ class MotionModel(ABC):
         """Take detection i into the track of ``pred`` row i (each track at most once)."""
 
 
-_MODELS: dict[str, type[MotionModel]] = {}
+#: the motion models by name (``link.make_model`` chooses one)
+MODELS: Registry[type[MotionModel]] = Registry('motion model')
 
 
 def register_model(cls: type[MotionModel]) -> type[MotionModel]:
     """Class decorator: make a motion model selectable by its ``name``."""
-    if cls.name in _MODELS:
-        raise ValueError(f'motion model {cls.name!r} registered twice')
-    _MODELS[cls.name] = cls
-    return cls
-
-
-def make_model(name: str, params: MotionParams) -> MotionModel:
-    """A new, empty motion model chosen by name (``pairwise`` or ``kalman``)."""
-    from mlkm_core.associators import kalman  # noqa: F401  (registers ``kalman``)
-
-    if name not in _MODELS:
-        raise ValueError(f'unknown motion model {name!r}; choose one of {", ".join(_MODELS)}')
-    return _MODELS[name](params)
+    return MODELS.add(cls.name, cls)
 
 
 @register_model
