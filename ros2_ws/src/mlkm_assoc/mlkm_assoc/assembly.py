@@ -41,6 +41,7 @@ import math
 from collections import Counter
 from collections.abc import Callable
 
+from mlkm_assoc.completion import Completion
 from mlkm_assoc.episodes import AssociationConfig, Episode, Job, Part
 from mlkm_assoc.runs import RunBook
 from mlkm_assoc.validation import (
@@ -48,6 +49,8 @@ from mlkm_assoc.validation import (
     POSITION_TOLERANCE,
     REJECT_REASONS,
     DetectionCheck,
+    HoldsEarly,
+    Received,
     same_layout,
 )
 from mlkm_core.bounds import Bounds
@@ -63,11 +66,13 @@ __all__ = [
     'Part',
 ]
 
-#: sensor id, stamp [ns], position, velocity, t_rx, lane, length
-Raw = tuple[int, int, float, float, float, int, float]
+
+def _count(name: str, doc: str) -> property:
+    """A read-only count of the assembler's :class:`Completion`."""
+    return property(lambda self: getattr(self._completion, name), doc=doc)
 
 
-class Assembler:
+class Assembler(HoldsEarly):
     """Episode and segment bookkeeping; emits :class:`Job` s through ``submit``."""
 
     def __init__(
@@ -78,20 +83,16 @@ class Assembler:
     ) -> None:
         self._config = config
         self._check = DetectionCheck(config.bounds())
-        self._submit = submit
         self._on_reject = on_reject
         self.layout: Layout | None = None
         self._layout_stamp = -1
-        self._pending_layout: list[Raw] = []
-        self._pending_episode: list[Raw] = []
+        self._pending_layout: list[Received] = []
+        self._pending_episode: list[Received] = []
         self.rejected: Counter[str] = Counter()
         self.handled: Counter[str] = Counter()
         self.received = 0
         self.accepted = 0
-        self.segments_done = 0
-        self.episodes_final = 0
-        self.episodes_unseen = 0  # episodes this node saw no detection of (no final)
-        self.missing = 0  # detections ENDED announced that never arrived
+        self._completion = Completion(submit)
         self.runs = 1
         self.first_rx: float | None = None
         self.last_rx: float | None = None
@@ -118,6 +119,12 @@ class Assembler:
     @property
     def bounds(self) -> Bounds:
         return self._check.bounds
+
+    # the counts of the episodes' completion (mlkm_assoc.completion)
+    segments_done = _count('segments_done', 'segments handed to the solver')
+    episodes_final = _count('episodes_final', 'episodes whose final went to the solver')
+    episodes_unseen = _count('episodes_unseen', 'episodes this node saw no detection of')
+    missing = _count('missing', 'detections ENDED announced that never arrived')
 
     # --- inputs ---------------------------------------------------------------------------
     def set_layout(
@@ -149,8 +156,7 @@ class Assembler:
         for episode_id in sorted(self._run.infos):
             self._ensure_episode(episode_id, now)
         held, self._pending_layout = self._pending_layout, []
-        for raw in held:
-            self._place(*raw)
+        self._place_held(held)
         return True
 
     def add_episode(
@@ -183,8 +189,7 @@ class Assembler:
             ep.last_activity = now
             self._advance(ep, now)
         held, self._pending_episode = self._pending_episode, []
-        for raw in held:
-            self._place(*raw)
+        self._place_held(held)
 
     def add_detection(
         self,
@@ -202,19 +207,13 @@ class Assembler:
         if self.first_rx is None:
             self.first_rx = now
         self.last_rx = now
+        raw = Received(sensor_id, stamp_ns, position, velocity, lane, length, now)
         if self.layout is None:
             reason = self._check.refuse_unplaced(stamp_ns, velocity, lane, length)
-            if reason is not None:
-                self._reject(reason, sensor_id, stamp_ns, velocity, lane, length)
-            elif self._held() >= self._config.max_buffered:
-                self._reject('buffer_full', sensor_id, stamp_ns, velocity, lane, length)
-            else:
-                self.handled['before_layout'] += 1
-                self._pending_layout.append(
-                    (sensor_id, stamp_ns, position, velocity, now, lane, length)
-                )
+            room = self._held() < self._config.max_buffered
+            self._hold_early(raw, reason, room, self._pending_layout)
             return
-        self._place(sensor_id, stamp_ns, position, velocity, now, lane, length)
+        self._place(raw)
 
     def tick(self, now: float) -> None:
         """Timeouts: held detections without an episode, episodes that stopped short."""
@@ -222,8 +221,8 @@ class Assembler:
         if self._pending_episode:
             keep = []
             for raw in self._pending_episode:
-                if now - raw[4] > timeout:
-                    self._reject('outside_episode', raw[0], raw[1], raw[3], raw[5], raw[6])
+                if now - raw.received > timeout:
+                    self._reject('outside_episode', raw)
                 else:
                     keep.append(raw)
             self._pending_episode = keep
@@ -267,20 +266,10 @@ class Assembler:
     def _held(self) -> int:
         return len(self._pending_layout) + len(self._pending_episode)
 
-    def _reject(
-        self,
-        reason: str,
-        sensor_id: int,
-        stamp_ns: int,
-        velocity: float,
-        lane: int = UNKNOWN_LANE,
-        length: float = math.nan,
-    ) -> None:
+    def _reject(self, reason: str, raw: Received) -> None:
         self.rejected[reason] += 1
         if self._on_reject is not None:
-            self._on_reject(
-                reason, self._check.describe(reason, sensor_id, stamp_ns, velocity, lane, length)
-            )
+            self._on_reject(reason, self._check.describe(reason, raw))
 
     def _new_run(self, now: float, run_stamp: int) -> None:
         """The source restarted: close the old run's episodes, forget its bookkeeping.
@@ -315,46 +304,36 @@ class Assembler:
                 return ep
         return None
 
-    def _place(
-        self,
-        sensor_id: int,
-        stamp_ns: int,
-        position: float,
-        velocity: float,
-        now: float,
-        lane: int = UNKNOWN_LANE,
-        length: float = math.nan,
-    ) -> None:
-        raw = (sensor_id, stamp_ns, position, velocity, now, lane, length)
-        s = self._check.index.get(sensor_id)
-        if s is None:
-            self._reject('unknown_sensor', sensor_id, stamp_ns, velocity, lane, length)
+    def _place(self, raw: Received) -> None:
+        sensor_id, stamp_ns, position, velocity, lane, length, now = raw
+        s, reason = self._check.check(raw)
+        if s < 0:
+            self._reject(reason, raw)
             return
-        reason = self._check.refuse(s, stamp_ns, position, velocity, lane, length)
         ep = self._find_episode(stamp_ns)
         if reason is not None:
             if ep is not None and not ep.finalized:
                 ep.rejected[s] += 1  # announced by ENDED, so not missing
                 ep.last_activity = now
-            self._reject(reason, sensor_id, stamp_ns, velocity, lane, length)
+            self._reject(reason, raw)
             return
         if ep is None:
             latest_start = self._run.latest_start
             if latest_start is not None and stamp_ns < latest_start:
-                self._reject('outside_episode', sensor_id, stamp_ns, velocity, lane, length)
+                self._reject('outside_episode', raw)
             elif self._held() >= self._config.max_buffered:
-                self._reject('buffer_full', sensor_id, stamp_ns, velocity, lane, length)
+                self._reject('buffer_full', raw)
             else:
                 self._pending_episode.append(raw)
             return
         if ep.finalized:
-            self._reject('after_episode_final', sensor_id, stamp_ns, velocity, lane, length)
+            self._reject('after_episode_final', raw)
             return
         ep.last_activity = now
         key = duplicate_key(sensor_id, lane, stamp_ns, velocity)
         if key in ep.seen[s]:
             ep.rejected[s] += 1
-            self._reject('duplicate', sensor_id, stamp_ns, velocity, lane, length)
+            self._reject('duplicate', raw)
             return
         if stamp_ns < self._last_stamp[s]:
             self.handled['out_of_order'] += 1
@@ -378,51 +357,14 @@ class Assembler:
         elif ep.next_segment == len(ep.segments) and ep.ended is not None:
             self._advance(ep, now)
 
-    def _job(
-        self, ep: Episode, kind: str, parts: tuple[Part, ...], now: float, forced: bool
-    ) -> Job:
-        return Job(
-            kind=kind,
-            episode_id=ep.id,
-            layout=ep.layout,
-            n_targets=ep.num_targets,
-            method=ep.method,
-            associator_config=ep.associator_config,
-            segments_total=len(ep.segments),
-            parts=parts,
-            completed_at=now,
-            forced=forced,
-            missing=ep.missing() if kind != 'segment' else 0,
-        )
-
-    def _advance(self, ep: Episode, now: float, forced: bool = False) -> None:
-        while ep.next_segment < len(ep.segments):
-            seg = ep.segments[ep.next_segment]
-            if not forced and not all(ep.sensor_done(s) for s in seg):
-                return
-            self._submit(self._job(ep, 'segment', (ep.part(seg),), now, forced))
-            ep.next_segment += 1
-            self.segments_done += 1
-        if not forced:
-            if ep.ended is None or not all(ep.sensor_done(s) for s in range(len(ep.seg_of))):
-                return
-        if ep.dirty:
-            parts = tuple(ep.part(seg) for seg in ep.segments)
-            self._submit(self._job(ep, 'rerun', parts, now, forced))
-        else:
-            self._submit(self._job(ep, 'final', (), now, forced))
-        self.missing += ep.missing()
-        self.episodes_final += 1
-        self._finish(ep)
+    def _advance(self, ep: Episode, now: float) -> None:
+        if self._completion.advance(ep, now):
+            self._finish(ep)
 
     def _force(self, ep: Episode, now: float) -> None:
-        """Finalise ``ep`` with what it has; without a single detection: no final at all."""
-        if ep.accepted == 0:
-            self.episodes_unseen += 1
-            self.missing += ep.missing()
+        """Finalise ``ep`` with what it has (:meth:`Completion.force`)."""
+        if self._completion.force(ep, now):
             self._finish(ep)
-            return
-        self._advance(ep, now, forced=True)
 
     def _finish(self, ep: Episode) -> None:
         ep.finalized = True

@@ -10,22 +10,21 @@ updated tracks, so the executor thread only ever appends to lists (fast ingest).
 from __future__ import annotations
 
 import re
-import statistics
 import sys
 import threading
 import time
-from collections import deque
 from dataclasses import replace
 from typing import Any
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.subscription import Subscription
 
-from mlkm_assoc.assembly import REJECT_REASONS, Assembler, AssociationConfig, Job
+from mlkm_assoc.assembly import Assembler, AssociationConfig, Job
+from mlkm_assoc.association_diagnostics import AssociationDiagnostics
 from mlkm_assoc.association_params import (
     BOUND_NAMES,
     NODE_PARAMS,
@@ -46,10 +45,6 @@ from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArra
 
 DETECTION_TYPE = 'road_sensor_msgs/msg/Detection'
 NS_PER_S = conv.NS_PER_S
-#: Samples kept for the solve-time and latency statistics (the most recent ones) [-].
-STATS_WINDOW = 1000
-#: Refusals of inputs other than detections, counted with the detections' reasons.
-MESSAGE_REASONS = ('invalid_layout', 'invalid_episode')
 
 
 class AssociationNode(Node):
@@ -60,8 +55,9 @@ class AssociationNode(Node):
         values = declare_parameters(self, SPECS, self._on_change)
         self.add_on_set_parameters_callback(self._check_bounds)
         self._diag_period: float = values.pop('diagnostics_period')
-        self._diag_window: float = values.pop('diagnostics_window')
-        self._warn_fraction: float = values.pop('warn_rejected_fraction')
+        self._stats = AssociationDiagnostics(
+            values.pop('diagnostics_window'), values.pop('warn_rejected_fraction')
+        )
         mode, lag, stream_method = (values.pop(name) for name in STREAM_PARAMS)
         max_uncommitted: int = values.pop('max_uncommitted')
         # the values given on the command line or in a params file (rclpy keeps them as the
@@ -75,19 +71,6 @@ class AssociationNode(Node):
             raise ParameterError(f'speed, stamp and length bounds refused: {exc}') from None
         self._assembler: Assembler = Assembler(self._config, self._submit, self._on_reject)
         self._solver: SolverProcess = SolverProcess(encode)
-        self._solve_times: deque[float] = deque(maxlen=STATS_WINDOW)
-        # segment complete -> its tracks published [s]; of which waiting for the solver
-        # (earlier segments) and neither waiting nor solving
-        self._latencies: deque[float] = deque(maxlen=STATS_WINDOW)
-        self._waits: deque[float] = deque(maxlen=STATS_WINDOW)
-        self._overheads: deque[float] = deque(maxlen=STATS_WINDOW)
-        self._solver_errors: int = 0
-        self._last_error: str = ''
-        # (monotonic time, received, rejected, solver errors) at each diagnostics publication,
-        # the oldest one just before the diagnostics window
-        self._history: deque[tuple[float, int, int, int]] = deque(maxlen=10_000)
-        self._tracks_published: int = 0
-        self._finals_published: int = 0
         self._diagnostics_due: bool = False
         self._det_subs: dict[str, Subscription] = {}
         self._publisher_check = PublisherCheck(self, DETECTION_TYPE, qos.DETECTIONS_QOS)
@@ -132,9 +115,9 @@ class AssociationNode(Node):
 
     def _on_change(self, changed: dict[str, Any]) -> None:
         if 'diagnostics_window' in changed:
-            self._diag_window = changed['diagnostics_window']
+            self._stats.window = changed['diagnostics_window']
         if 'warn_rejected_fraction' in changed:
-            self._warn_fraction = changed['warn_rejected_fraction']
+            self._stats.warn_fraction = changed['warn_rejected_fraction']
         keep = {k: v for k, v in changed.items() if k not in NODE_PARAMS}
         if keep:
             cfg = self._config.__dict__ | keep
@@ -275,21 +258,10 @@ class AssociationNode(Node):
 
     def _publish(self, update: Update) -> None:
         self._tracks_pub.publish(update.data)
-        latency = time.monotonic() - update.completed_at
-        self._tracks_published += 1
+        self._stats.published(update, time.monotonic() - update.completed_at)
         if update.error:
-            self._solver_errors += 1
-            self._last_error = update.error
             self.get_logger().error(update.error)
-        if not update.final:
-            self._solve_times.append(update.solve_time)
-            if not update.forced:
-                self._latencies.append(latency)
-                wait = update.started_at - update.completed_at
-                self._waits.append(wait)
-                self._overheads.append(latency - wait - update.solve_time)
-        else:
-            self._finals_published += 1
+        if update.final:
             self.get_logger().info(
                 f'episode {update.episode_id}: final tracks, {update.detections} detections '
                 f'in {update.tracks} tracks, {update.unassigned} unassigned, '
@@ -299,82 +271,15 @@ class AssociationNode(Node):
 
     # --- diagnostics ----------------------------------------------------------------------
     def diagnostics(self) -> dict[str, object]:
-        a = self._assembler
-        values: dict[str, object] = {
-            'method': self._config.method,
-            'segment_size': self._config.segment_size,
-            'sensors': 0 if a.layout is None else a.layout.n_sensors,
-            'received': a.received,
-            'accepted': a.accepted,
-            'rejected': sum(a.rejected.values()),
-        }
-        for reason in (*REJECT_REASONS, *MESSAGE_REASONS):
-            values[f'rejected.{reason}'] = a.rejected.get(reason, 0)
-        for reason, count in sorted(a.handled.items()):
-            values[f'handled.{reason}'] = count
-        values.update(a.buffer_sizes())
-        values['segments_done'] = a.segments_done
-        values['episodes_final'] = a.episodes_final
-        values['episodes_unseen'] = a.episodes_unseen
-        values['missing_detections'] = a.missing
-        values['runs'] = a.runs
-        values['episodes_remembered'] = a.remembered_episodes()
-        values['track_updates_published'] = self._tracks_published
-        values['episodes_published'] = self._finals_published
-        values['solver_errors'] = self._solver_errors
-        values['incompatible_publishers'] = self._publisher_check.incompatible
-        values['solver_error_last'] = self._last_error
-        solve, lat = list(self._solve_times), list(self._latencies)
-        values['solve_time_last'] = f'{solve[-1]:.6f}' if solve else ''
-        values['solve_time_mean'] = f'{statistics.fmean(solve):.6f}' if solve else ''
-        values['solve_time_max'] = f'{max(solve):.6f}' if solve else ''
-        values['latency_p50'] = f'{_quantile(lat, 0.5):.6f}' if lat else ''
-        values['latency_p95'] = f'{_quantile(lat, 0.95):.6f}' if lat else ''
-        values['latency_count'] = len(lat)
-        waits = list(self._waits)
-        values['queue_wait_p50'] = f'{_quantile(waits, 0.5):.6f}' if waits else ''
-        values['queue_wait_p95'] = f'{_quantile(waits, 0.95):.6f}' if waits else ''
-        over = list(self._overheads)
-        values['overhead_p50'] = f'{_quantile(over, 0.5):.6f}' if over else ''
-        values['overhead_p95'] = f'{_quantile(over, 0.95):.6f}' if over else ''
-        values['first_receive'] = '' if a.first_rx is None else f'{a.first_rx:.6f}'
-        values['last_receive'] = '' if a.last_rx is None else f'{a.last_rx:.6f}'
-        if a.first_rx is not None and a.last_rx is not None and a.last_rx > a.first_rx:
-            values['ingest_rate'] = f'{(a.received - 1) / (a.last_rx - a.first_rx):.1f}'
-        else:
-            values['ingest_rate'] = ''
+        values = self._stats.values(
+            self._config, self._assembler, self._publisher_check.incompatible
+        )
         self._modes.diagnostics(values)
         return values
 
     def diagnostics_level(self, values: dict[str, object], now: float) -> tuple[int, str]:
-        """(level, reason) judged on the last ``diagnostics_window`` seconds: ERROR after a
-        solver error, WARN while stream mode commits without window solves (overloaded) or
-        when too large a fraction of the detections was rejected."""
-        sample = (now, int(values['received']), int(values['rejected']), self._solver_errors)
-        history = self._history
-        history.append(sample)
-        while len(history) > 2 and history[1][0] <= now - self._diag_window:
-            history.popleft()
-        t0, received0, rejected0, errors0 = history[0]
-        if t0 > now - self._diag_window:  # no sample before the window: since start-up
-            received0 = rejected0 = errors0 = 0
-        if self._solver_errors > errors0:
-            return DiagnosticStatus.ERROR[0], f'solver error: {self._last_error}'
-        if int(values.get('stream.tracker.overloaded', 0)):
-            return (
-                DiagnosticStatus.WARN[0],
-                'stream: the window solves cannot keep up, links are committed as first made '
-                f'({values["stream.tracker.skipped_solves"]} solves skipped, '
-                f'{values["stream.tracker.forced_commits"]} detections committed so)',
-            )
-        received, rejected = sample[1] - received0, sample[2] - rejected0
-        if rejected and rejected > self._warn_fraction * max(received, 1):
-            return (
-                DiagnosticStatus.WARN[0],
-                f'{rejected} of {received} detections rejected in the last '
-                f'{self._diag_window:g} s',
-            )
-        return DiagnosticStatus.OK[0], ''
+        """(level, reason) of ``values`` (see AssociationDiagnostics.level)."""
+        return self._stats.level(values, now)
 
     def publish_diagnostics(self) -> None:
         values = self.diagnostics()
@@ -404,34 +309,12 @@ class AssociationNode(Node):
         super().destroy_node()
 
 
-def _quantile(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    pos = q * (len(ordered) - 1)
-    lo = int(pos)
-    hi = min(lo + 1, len(ordered) - 1)
-    return ordered[lo] + (ordered[hi] - ordered[lo]) * (pos - lo)
-
-
 def main(args: list[str] | None = None) -> int:
-    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle): exit 0, no traceback
-    with lifecycle.stop_signals():
-        # stream mode's processes, forked while no ROS thread runs (mlkm_assoc.stream_worker)
-        prestart()
-        lifecycle.init_rclpy(args)
-        try:
-            node = AssociationNode()
-        except ParameterError as exc:
-            print(f'association_node: {exc}', file=sys.stderr)
-            rclpy.try_shutdown()
-            return 2
-        try:
-            lifecycle.spin(node)
-        finally:
-            if lifecycle.STOP.requested:
-                lifecycle.end_helpers()  # Ctrl-C: the solves in hand are not waited for
-            node.destroy_node()
-            rclpy.try_shutdown()
-    return 0
+    # stream mode's processes are forked while no ROS thread runs (mlkm_assoc.stream_worker);
+    # a Ctrl-C drops the solves in hand
+    return lifecycle.run_node(
+        'association_node', AssociationNode, args, before_init=prestart, drop_helpers=True
+    )
 
 
 if __name__ == '__main__':

@@ -1,13 +1,16 @@
 """The association node's parameters: one table with descriptions, units and ranges.
 
-The defaults of the physical bounds are those of :class:`mlkm_core.bounds.Bounds`;
-config/association_node.param.yaml repeats every default (a test keeps them equal).
+The defaults of the assembly's settings are those of :class:`AssociationConfig` (whose
+bounds are :class:`mlkm_core.bounds.Bounds`), those of stream mode the core's
+:class:`~mlkm_core.streaming.config.StreamConfig`; config/association_node.param.yaml repeats
+every default for users (a test keeps them equal).
 """
 
 from __future__ import annotations
 
+from mlkm_assoc.episodes import AssociationConfig
 from mlkm_core.associators.base import available_methods
-from mlkm_core.bounds import Bounds
+from mlkm_core.streaming.config import StreamConfig
 from mlkm_ros.params import ParamSpec, positive
 
 #: Parameters of stream mode (mlkm_assoc.modes), read once at start-up.
@@ -20,7 +23,8 @@ NODE_PARAMS = (
     'max_uncommitted',
     *STREAM_PARAMS,
 )
-_BOUNDS = Bounds()
+_DEFAULTS = AssociationConfig()
+_STREAM = StreamConfig()
 BOUND_NAMES = ('min_speed', 'max_speed', 'min_stamp', 'max_stamp', 'min_length', 'max_length')
 
 
@@ -29,6 +33,18 @@ def _check_method(value: str) -> str | None:
     if value in methods:
         return None
     return f'unknown method {value!r}; choose one of {", ".join(methods)}'
+
+
+def _method_spec(name: str, default: str, description: str, read_only: bool = False) -> ParamSpec:
+    """A parameter naming one of the core's associators (the choices in its descriptor)."""
+    return ParamSpec(
+        name,
+        default,
+        description,
+        read_only=read_only,
+        check=_check_method,
+        constraints='one of: ' + ', '.join(available_methods()),
+    )
 
 
 def stream_associator(method: str, stream_method: str, given: set[str]) -> str:
@@ -47,17 +63,15 @@ def _check_mode(value: str) -> str | None:
 
 
 SPECS = [
-    ParamSpec(
+    _method_spec(
         'method',
-        'mlkm',
+        _DEFAULTS.method,
         'associator from the core, any of mlkm_core available_methods() (applies from '
         'the next episode); also of stream mode when given without stream_method [-]',
-        check=_check_method,
-        constraints='one of: ' + ', '.join(available_methods()),
     ),
     ParamSpec(
         'segment_size',
-        5,
+        _DEFAULTS.segment_size,
         'K: sensors per road segment; one association update per completed segment '
         '(applies from the next episode) [-]',
         1,
@@ -65,14 +79,14 @@ SPECS = [
     ),
     ParamSpec(
         'seed',
-        0,
+        _DEFAULTS.seed,
         'random state of the associator (applies from the next episode) [-]',
         0,
         2**31 - 1,
     ),
     ParamSpec(
         'completion_timeout',
-        5.0,
+        _DEFAULTS.completion_timeout,
         'after an episode ended, associate what is there once nothing arrived for this '
         'long; also how long a detection waits for its episode [s]',
         1e-3,
@@ -81,7 +95,7 @@ SPECS = [
     ),
     ParamSpec(
         'episode_timeout',
-        60.0,
+        _DEFAULTS.episode_timeout,
         'an episode that never ended (its source died) is finalised with what it has once '
         'nothing arrived for it this long [s]',
         1e-3,
@@ -90,7 +104,7 @@ SPECS = [
     ),
     ParamSpec(
         'max_finished_episodes',
-        100,
+        _DEFAULTS.max_finished_episodes,
         'finished episodes remembered to recognise their late detections; older ones are '
         'forgotten [-]',
         1,
@@ -98,7 +112,7 @@ SPECS = [
     ),
     ParamSpec(
         'min_speed',
-        _BOUNDS.min_speed,
+        _DEFAULTS.min_speed,
         'slowest plausible detection velocity; slower ones are rejected [m/s]',
         1e-9,
         1e6,
@@ -106,7 +120,7 @@ SPECS = [
     ),
     ParamSpec(
         'max_speed',
-        _BOUNDS.max_speed,
+        _DEFAULTS.max_speed,
         'fastest plausible detection velocity; faster ones are rejected [m/s]',
         1e-9,
         1e6,
@@ -114,21 +128,21 @@ SPECS = [
     ),
     ParamSpec(
         'min_stamp',
-        _BOUNDS.min_stamp,
+        _DEFAULTS.min_stamp,
         'earliest plausible detection stamp; earlier ones are rejected [s]',
         0.0,
         float(2**31 - 1),
     ),
     ParamSpec(
         'max_stamp',
-        _BOUNDS.max_stamp,
+        _DEFAULTS.max_stamp,
         'latest plausible detection stamp; later ones are rejected [s]',
         0.0,
         float(2**31 - 1),
     ),
     ParamSpec(
         'min_length',
-        _BOUNDS.min_length,
+        _DEFAULTS.min_length,
         'shortest plausible measured vehicle length; shorter ones are rejected (a length of '
         'NaN or 0 means not measured and is accepted) [m]',
         1e-9,
@@ -137,7 +151,7 @@ SPECS = [
     ),
     ParamSpec(
         'max_length',
-        _BOUNDS.max_length,
+        _DEFAULTS.max_length,
         'longest plausible measured vehicle length; longer ones are rejected [m]',
         1e-9,
         1e6,
@@ -155,7 +169,7 @@ SPECS = [
     ),
     ParamSpec(
         'lag',
-        15.0,
+        _STREAM.lag,
         'stream mode: a link may be revised until the newest stamp is this far past the '
         "detection's stamp, then it is committed; a road without detections for this long "
         '(wall time) is flushed [s]',
@@ -164,13 +178,11 @@ SPECS = [
         check=positive,
         read_only=True,
     ),
-    ParamSpec(
+    _method_spec(
         'stream_method',
-        'multiframe',
+        _STREAM.method,
         "stream mode: associator of the tracker's window solves, any of mlkm_core "
         'available_methods(); when not given, the method given, else this default [-]',
-        check=_check_method,
-        constraints='one of: ' + ', '.join(available_methods()),
         read_only=True,
     ),
     ParamSpec(

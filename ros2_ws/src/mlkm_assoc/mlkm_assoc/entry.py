@@ -1,13 +1,6 @@
-"""Entry points of the installed node executables: SIGINT and SIGTERM are caught before the
-node's module (rclpy, numpy, ...) is imported, so a Ctrl-C at any moment of the start-up ends
-the process with exit 0 and no traceback (mlkm_ros.lifecycle)."""
+"""The console scripts ``association_node`` and ``scorer_node`` (named by setup.py)."""
 
-from mlkm_ros.lifecycle import run
+from mlkm_ros.lifecycle import entry_point
 
-
-def association_node() -> int:
-    return run('mlkm_assoc.association_node')
-
-
-def scorer_node() -> int:
-    return run('mlkm_assoc.scorer_node')
+association_node = entry_point('mlkm_assoc.association_node')
+scorer_node = entry_point('mlkm_assoc.scorer_node')

@@ -19,73 +19,24 @@ import math
 import time
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from mlkm_assoc.episode_inputs import (
+    Key,
+    OpenEpisode,
+    ScoredEpisode,
+    ScorerConfig,
+    Window,
+    check_tracks,
+    valid_stamp_ns,
+)
 from mlkm_core.metrics import score
 from mlkm_core.types import Detections
 from mlkm_ros import conversions as conv
 from road_sensor_msgs.msg import EpisodeInfo, GroundTruth, TrackArray
 
-NS_PER_S = conv.NS_PER_S
-Key = tuple[int, int, int]  # (sensor id, stamp ns, lane): the join key
-Window = tuple[int, int, int]  # (num_targets, start ns, end ns) of an EpisodeInfo
-
-
-@dataclass(frozen=True)
-class ScorerConfig:
-    """The scorer's episodes-mode settings (node parameters of the same names)."""
-
-    truth_timeout: float = 10.0  # [s]
-    forget_after: float = 300.0  # [s]
-    max_open_episodes: int = 100  # [episodes]
-    max_scored_episodes: int = 1000  # [episodes]
-    max_buffered_truth: int = 1_000_000  # [messages]
-
-
-@dataclass
-class _Episode:
-    """One unscored episode of the current run."""
-
-    last_rx: float  # monotonic time of its last input (info, truth, tracks) [s]
-    window: Window | None = None
-    started_ns: int | None = None  # publication stamp of its STARTED
-    counts: dict[int, int] | None = None  # ENDED: {sensor id: detections published}
-    truth: dict[Key, tuple[int, float]] = field(default_factory=dict)  # -> (target, true v)
-    final: TrackArray | None = None
-
-    def inside(self, stamp_ns: int) -> bool:
-        return self.window is None or self.window[1] <= stamp_ns <= self.window[2]
-
-
-@dataclass(frozen=True)
-class _Scored:
-    window: Window | None
-    started_ns: int | None
-
-
-def valid_stamp_ns(stamp) -> int:
-    """A message time in integer ns; ValueError when it is negative or malformed."""
-    if stamp.sec < 0 or stamp.nanosec >= NS_PER_S:
-        raise ValueError(f'invalid time {stamp.sec} s {stamp.nanosec} ns')
-    return conv.time_to_ns(stamp)
-
-
-def _check_tracks(msg: TrackArray) -> list[int]:
-    """Stamps [ns] of every detection in the tracks; ValueError when arrays disagree."""
-    stamps = []
-    for track in msg.tracks:
-        n = len(track.sensor_ids)
-        if not (len(track.stamps) == len(track.velocities) == len(track.positions) == n):
-            raise ValueError(f'track {track.track_id}: parallel arrays differ in length')
-        stamps.extend(valid_stamp_ns(t) for t in track.stamps)
-    n = len(msg.unassigned_sensor_ids)
-    if not (len(msg.unassigned_stamps) == len(msg.unassigned_velocities) == n):
-        raise ValueError('unassigned_* arrays differ in length')
-    stamps.extend(valid_stamp_ns(t) for t in msg.unassigned_stamps)
-    conv.track_lanes_from_msg(msg)  # lanes/lengths empty or parallel to sensor_ids
-    return stamps
+__all__ = ['EpisodeScoring', 'ScorerConfig', 'valid_stamp_ns']
 
 
 class EpisodeScoring:
@@ -108,8 +59,8 @@ class EpisodeScoring:
         self.config = config
         self._sensor_index = sensor_index
         self._reject = reject
-        self._open: dict[int, _Episode] = {}  # unscored episodes, by id
-        self._scored: OrderedDict[int, _Scored] = OrderedDict()  # oldest first
+        self._open: dict[int, OpenEpisode] = {}  # unscored episodes, by id
+        self._scored: OrderedDict[int, ScoredEpisode] = OrderedDict()  # oldest first
         self._buffered = 0  # truth messages held in self._open
         self.sum = 0.0  # accuracies in the mean
         self.in_mean = 0
@@ -213,7 +164,7 @@ class EpisodeScoring:
     def on_tracks(self, msg: TrackArray) -> None:
         """A TrackArray the stream mode did not take."""
         try:
-            stamps = _check_tracks(msg)
+            stamps = check_tracks(msg)
         except ValueError as exc:
             self._reject('invalid_tracks', f'episode {msg.episode_id}: {exc}')
             return
@@ -251,7 +202,7 @@ class EpisodeScoring:
                 self._drop(episode, f'no final tracks for {cfg.forget_after:g} s')
 
     # --- bookkeeping ----------------------------------------------------------------------
-    def _episode(self, episode: int, now: float) -> _Episode:
+    def _episode(self, episode: int, now: float) -> OpenEpisode:
         """The open record of ``episode`` (created, and the oldest dropped past the limit)."""
         ep = self._open.get(episode)
         if ep is None:
@@ -261,7 +212,7 @@ class EpisodeScoring:
                     self._score(oldest)
                 else:
                     self._drop(oldest, f'more than {self.config.max_open_episodes} open')
-            ep = self._open[episode] = _Episode(last_rx=now)
+            ep = self._open[episode] = OpenEpisode(last_rx=now)
         ep.last_rx = now
         return ep
 
@@ -314,15 +265,15 @@ class EpisodeScoring:
         comes, or dropped after ``forget_after``."""
         self._scored.clear()
 
-    def _remember(self, episode: int, ep: _Episode) -> None:
-        self._scored[episode] = _Scored(ep.window, ep.started_ns)
+    def _remember(self, episode: int, ep: OpenEpisode) -> None:
+        self._scored[episode] = ScoredEpisode(ep.window, ep.started_ns)
         self._scored.move_to_end(episode)
         while len(self._scored) > self.config.max_scored_episodes:
             self._scored.popitem(last=False)
 
     # --- scoring --------------------------------------------------------------------------
     @staticmethod
-    def _complete(ep: _Episode, truth: Iterable[Key]) -> bool:
+    def _complete(ep: OpenEpisode, truth: Iterable[Key]) -> bool:
         """Whether ``truth`` (keys inside the window) holds every ENDED count."""
         if ep.counts is None:
             return False

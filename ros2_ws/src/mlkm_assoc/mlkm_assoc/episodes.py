@@ -15,6 +15,7 @@ from mlkm_core.bounds import Bounds
 from mlkm_core.types import UNKNOWN_LANE, Layout, segments
 
 _DEFAULT_BOUNDS = Bounds()
+_ASSOCIATOR = AssociatorConfig()
 
 
 @dataclass(frozen=True)
@@ -22,8 +23,8 @@ class AssociationConfig:
     """The association node's settings (from its parameters)."""
 
     method: str = 'mlkm'
-    segment_size: int = 5
-    seed: int = 0
+    segment_size: int = _ASSOCIATOR.segment_size
+    seed: int = _ASSOCIATOR.seed
     completion_timeout: float = 5.0  # [s]
     episode_timeout: float = 60.0  # an open episode without any input is closed after [s]
     max_buffered: int = 5_000_000  # held detections (before layout / episode) [-]
@@ -178,4 +179,20 @@ class Episode:
             np.asarray(vel, dtype=float),
             np.asarray(lane, dtype=np.int64),
             np.asarray(size, dtype=float),
+        )
+
+    def job(self, kind: str, parts: tuple[Part, ...], now: float, forced: bool) -> Job:
+        """The solver's work of ``kind`` ('segment', 'rerun' or 'final') on ``parts``."""
+        return Job(
+            kind=kind,
+            episode_id=self.id,
+            layout=self.layout,
+            n_targets=self.num_targets,
+            method=self.method,
+            associator_config=self.associator_config,
+            segments_total=len(self.segments),
+            parts=parts,
+            completed_at=now,
+            forced=forced,
+            missing=self.missing() if kind != 'segment' else 0,
         )

@@ -38,9 +38,9 @@ class ReorderBuffer:
     def __init__(
         self, n_sensors: int, margin: float = 0.8, wait: float = 0.05, max_hold: float = 1.0
     ) -> None:
-        # [s] stamp time; below the tracker's reorder tolerance (1 s). 0.8 rather than 0.5:
-        # at 50 times real time a 10 ms burst of the node is 0.5 s of stamps, and the holds
-        # it caused were a third of the latency p95 at 1,000 detections/s
+        # [s] stamp time; below the tracker's reorder tolerance (1 s), and wide enough that a
+        # short burst of the node at a high real-time factor, which spans several tenths of a
+        # second of stamps, does not hold detections needlessly (docs/benchmarks.md)
         self.margin = margin
         self.wait = wait  # [s] wall time
         self.max_hold = max_hold  # [s] wall time

@@ -39,7 +39,6 @@ import time
 from collections import Counter
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 
@@ -47,7 +46,7 @@ from mlkm_assoc.episode_scoring import EpisodeScoring, ScorerConfig, valid_stamp
 from mlkm_assoc.stream_scoring import STREAM_SPECS, StreamScoring
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle, qos
-from mlkm_ros.params import ParameterError, ParamSpec, declare_parameters, positive
+from mlkm_ros.params import ParamSpec, declare_parameters, positive
 from road_sensor_msgs.msg import (
     AssociationScore,
     EpisodeInfo,
@@ -56,10 +55,13 @@ from road_sensor_msgs.msg import (
     TrackArray,
 )
 
+#: The defaults of the episodes-mode settings.
+_DEFAULTS = ScorerConfig()
+
 SPECS = [
     ParamSpec(
         'truth_timeout',
-        10.0,
+        _DEFAULTS.truth_timeout,
         'score an episode with the truth at hand when truth is still missing and no '
         'ground truth (nor any input for the episode) arrived for this long [s]',
         1e-3,
@@ -68,7 +70,7 @@ SPECS = [
     ),
     ParamSpec(
         'forget_after',
-        300.0,
+        _DEFAULTS.forget_after,
         'drop an unscored episode (no final tracks) after this long without any input for it [s]',
         1e-3,
         1e9,
@@ -76,21 +78,21 @@ SPECS = [
     ),
     ParamSpec(
         'max_open_episodes',
-        100,
+        _DEFAULTS.max_open_episodes,
         'unscored episodes held at once; beyond it the oldest is dropped [episodes]',
         1,
         1_000_000,
     ),
     ParamSpec(
         'max_scored_episodes',
-        1000,
+        _DEFAULTS.max_scored_episodes,
         'scored episode ids remembered to drop their late truth and repeated finals [episodes]',
         1,
         10_000_000,
     ),
     ParamSpec(
         'max_buffered_truth',
-        1_000_000,
+        _DEFAULTS.max_buffered_truth,
         'ground-truth messages held for unscored episodes; beyond it new ones are '
         'rejected [messages]',
         1,
@@ -287,21 +289,7 @@ class ScorerNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle): exit 0, no traceback
-    with lifecycle.stop_signals():
-        lifecycle.init_rclpy(args)
-        try:
-            node = ScorerNode()
-        except ParameterError as exc:
-            print(f'scorer_node: {exc}', file=sys.stderr)
-            rclpy.try_shutdown()
-            return 2
-        try:
-            lifecycle.spin(node)
-        finally:
-            node.destroy_node()
-            rclpy.try_shutdown()
-    return 0
+    return lifecycle.run_node('scorer_node', ScorerNode, args)
 
 
 if __name__ == '__main__':

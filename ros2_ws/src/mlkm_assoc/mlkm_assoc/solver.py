@@ -251,18 +251,13 @@ class SolverProcess:
         # Results come back through a pipe written synchronously by the solver's main thread
         # (a Queue's feeder thread would wait for the GIL behind the next solve).
         self._results, sender = ctx.Pipe(duplex=False)
-        self._proc = ctx.Process(
-            target=_serve,
-            args=(self._jobs, sender, os.getpid(), encode),
-            name='mlkm_solver',
-            daemon=True,
-        )
         # mlkm_ros.lifecycle imports no ROS; imported here so that this module loads none of
         # the mlkm_ros package
-        from mlkm_ros.lifecycle import stop_signals_blocked
+        from mlkm_ros.lifecycle import start_helper
 
-        with stop_signals_blocked():  # see mlkm_ros.lifecycle.helper_process
-            self._proc.start()
+        self._proc = start_helper(
+            ctx, _serve, (self._jobs, sender, os.getpid(), encode), 'mlkm_solver'
+        )
         sender.close()  # the child holds the only writer: its exit ends get() with None
 
     def submit(self, job: Job | None) -> None:

@@ -7,6 +7,7 @@ position, a lane the station has, no duplicate; the same rejection reasons in
 answers with the tracks it changed. A publisher thread publishes each answer on /mlkm/tracks
 (TrackArray MODE_STREAM) and keeps the statistics, all in ring buffers.
 
+Detections are checked and numbered by :class:`~mlkm_assoc.stream_ingest.StreamIngest`.
 A road that falls quiet (no detection for ``lag`` seconds of wall time) is flushed: every
 link is committed and every track becomes FINAL. A new layout flushes the old road too.
 Detections that arrive before the layout are held (up to ``max_buffered``) and checked once
@@ -19,43 +20,32 @@ import math
 import sys
 import threading
 import time
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
+from mlkm_assoc.stream_ingest import REJECT_REASONS, StreamIngest
 from mlkm_assoc.stream_state import Answer, TrackerSettings
 from mlkm_assoc.stream_worker import TrackerProcess
-from mlkm_core.bounds import REASONS as BOUNDS_REASONS
+from mlkm_assoc.validation import NS_PER_S
 from mlkm_core.bounds import Bounds
-from mlkm_core.types import Layout, duplicate_key
+from mlkm_core.types import Layout
 
 #: Samples kept for the latency and solve-time statistics (the most recent ones) [-].
 STATS_WINDOW = 10_000
-#: Tolerance between a detection's position and its sensor's layout position [m].
-POSITION_TOLERANCE = 1e-3
-NS_PER_S = 1_000_000_000
 #: Longest time a thread of the node holds the GIL while another one waits for it [s].
 SWITCH_INTERVAL = 0.001
 #: Parts of a detection's latency: queued from the node to the tracker process, held in the
 #: reorder buffer, in the tracker until its answer is sent, from then to the publication.
 LATENCY_PARTS = ('queue', 'hold', 'tracker', 'publish')
-#: Reasons a detection is rejected in stream mode (a subset of episodes mode's).
-REJECT_REASONS = (
-    *BOUNDS_REASONS,
-    'unknown_sensor',
-    'position_mismatch',
-    'lane_out_of_range',
-    'duplicate',
-    'buffer_full',
-)
-
-Raw = tuple[int, int, float, float, int, float, float]  # id, ns, pos, v, lane, length, t_rx
 
 
 @dataclass(frozen=True)
 class StreamSettings:
+    """Stream mode's settings: the tracker's and the node's own bound on held detections."""
+
     method: str  # associator of the tracker
     lag: float  # [s] stamp time a link stays revisable; also the quiet time before a flush
     segment_size: int
@@ -63,137 +53,12 @@ class StreamSettings:
     max_buffered: int  # detections held before the layout, or queued for the tracker [-]
     max_uncommitted: int = 0  # the tracker's backlog bound (StreamConfig), 0 = none [-]
 
+    def tracker(self) -> TrackerSettings:
+        """The settings the tracker process builds its trackers from."""
+        return TrackerSettings(**{f.name: getattr(self, f.name) for f in fields(TrackerSettings)})
 
-class StreamIngest:
-    """Validation, numbering and duplicate detection (ROS-free, cheap per detection)."""
 
-    def __init__(
-        self,
-        bounds: Bounds,
-        max_buffered: int,
-        send: Callable[[tuple], None],
-        on_reject: Callable[[str, str], None] | None = None,
-    ) -> None:
-        self.bounds = bounds
-        self._max_buffered = max_buffered
-        self._send = send
-        self._on_reject = on_reject
-        self.layout: Layout | None = None
-        self._index: dict[int, int] = {}
-        self._positions: list[float] = []
-        self._lanes: tuple[int, ...] | None = None
-        self._held: list[Raw] = []
-        # duplicate keys of the detections not yet committed, oldest first
-        self._seen: set[tuple] = set()
-        self._seen_order: deque[tuple[int, tuple]] = deque()
-        self.next_key = 0
-        self.received = 0
-        self.accepted = 0
-        self.rejected: Counter[str] = Counter()
-        self.handled: Counter[str] = Counter()
-        self.last_rx: float | None = None
-
-    def set_layout(
-        self,
-        layout: Layout,
-        lane_counts: tuple[int, ...] | None,
-        entries: tuple[float, ...],
-        exits: tuple[float, ...],
-    ) -> None:
-        self.layout = layout
-        self._index = {int(s): i for i, s in enumerate(layout.sensor_ids)}
-        self._positions = [float(p) for p in layout.positions]
-        self._lanes = lane_counts
-        self._seen.clear()
-        self._seen_order.clear()
-        self._send(('layout', layout, entries, exits))
-        held, self._held = self._held, []
-        for raw in held:
-            self._place(*raw)
-
-    def add(
-        self,
-        sensor_id: int,
-        stamp_ns: int,
-        position: float,
-        velocity: float,
-        lane: int,
-        length: float,
-        now: float,
-    ) -> None:
-        self.received += 1
-        self.last_rx = now
-        if self.layout is None:
-            reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity, length)
-            if reason is not None:
-                self._reject(reason, sensor_id, stamp_ns, velocity)
-            elif len(self._held) >= self._max_buffered:
-                self._reject('buffer_full', sensor_id, stamp_ns, velocity)
-            else:
-                self.handled['before_layout'] += 1
-                self._held.append((sensor_id, stamp_ns, position, velocity, lane, length, now))
-            return
-        self._place(sensor_id, stamp_ns, position, velocity, lane, length, now)
-
-    def committed(self, committed_until_ns: int) -> None:
-        """Forget the duplicate keys of detections stamped before ``committed_until_ns``:
-        a repeat of one of them reaches the tracker, which leaves it unassigned (late)."""
-        order, seen = self._seen_order, self._seen
-        while order and order[0][0] < committed_until_ns:
-            seen.discard(order.popleft()[1])
-
-    @property
-    def held(self) -> int:
-        return len(self._held)
-
-    def _place(
-        self,
-        sensor_id: int,
-        stamp_ns: int,
-        position: float,
-        velocity: float,
-        lane: int,
-        length: float,
-        now: float,
-    ) -> None:
-        s = self._index.get(sensor_id)
-        if s is None:
-            self._reject('unknown_sensor', sensor_id, stamp_ns, velocity)
-            return
-        reason = self.bounds.refuse(stamp_ns / NS_PER_S, velocity, length)
-        if reason is None and not abs(position - self._positions[s]) <= POSITION_TOLERANCE:
-            reason = 'position_mismatch'
-        if reason is None and (
-            lane < -1 or (lane >= 0 and self._lanes is not None and lane >= self._lanes[s])
-        ):
-            reason = 'lane_out_of_range'
-        if reason is None:
-            dup = duplicate_key(sensor_id, lane, stamp_ns, velocity)
-            if dup in self._seen:
-                reason = 'duplicate'
-            else:
-                self._seen.add(dup)
-                self._seen_order.append((stamp_ns, dup))
-        if reason is not None:
-            self._reject(reason, sensor_id, stamp_ns, velocity)
-            return
-        length = math.nan if length == 0.0 else length
-        item = ('det', self.next_key, s, sensor_id, stamp_ns, velocity, position, lane, length)
-        if self._send((*item, now)) is False:  # the tracker process's queue is full
-            self._seen.discard(dup)
-            self._reject('buffer_full', sensor_id, stamp_ns, velocity)
-            return
-        self.accepted += 1
-        self.next_key += 1
-
-    def _reject(self, reason: str, sensor_id: int, stamp_ns: int, velocity: float) -> None:
-        self.rejected[reason] += 1
-        if self._on_reject is not None:
-            detail = self.bounds.describe(reason) if reason in BOUNDS_REASONS else reason
-            self._on_reject(
-                reason,
-                f'sensor {sensor_id}, stamp {stamp_ns} ns, velocity {velocity!r} m/s: {detail}',
-            )
+__all__ = ['REJECT_REASONS', 'StreamIngest', 'StreamMode', 'StreamSettings']
 
 
 class StreamMode:
@@ -217,13 +82,7 @@ class StreamMode:
         self._log = log
         self.ready_after: float | None = None  # [s] from here to the tracker process ready
         self._process = TrackerProcess(
-            TrackerSettings(
-                settings.method,
-                settings.lag,
-                settings.segment_size,
-                settings.seed,
-                settings.max_uncommitted,
-            ),
+            settings.tracker(),
             max_queued=settings.max_buffered,
             on_ready=self._on_ready,
         )

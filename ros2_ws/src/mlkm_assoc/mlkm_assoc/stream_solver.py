@@ -12,10 +12,9 @@ The solver runs as a batch job (SCHED_BATCH): it keeps its fair share of the CPU
 preempt the node or the tracker process when they wake up, since a detection's latency
 depends on them getting the CPU when it arrives, while a solve only has to be done before
 its commits are due. When the machine cannot do both, the commits fall behind
-(``stream.commit_lag`` in /diagnostics). Measured on 2 cores with the stream part of ``mlkm
-bench`` at 1,000 detections/s: latency p95 35-44 ms (three runs). A niceness of 10 as well
-gave no better latency and starved the solves while a source at real_time_factor 0 took a
-core (the node's RSS then grew 13 % over the hour of SUMO traffic, limit 10 %).
+(``stream.commit_lag`` in /diagnostics). A niceness on top of SCHED_BATCH gave no better
+latency and starved the solves while a fast source took a core (measurements:
+docs/benchmarks.md#stream-node-internals, ``mlkm bench --only stream``).
 """
 
 from __future__ import annotations
@@ -26,7 +25,7 @@ import time
 from collections import deque
 from typing import Any
 
-from mlkm_ros.lifecycle import helper_process, stop_signals_blocked
+from mlkm_ros.lifecycle import helper_process, start_helper
 
 #: Shortest time between two looks at the result pipe from ``done`` [s]: the tracker asks at
 #: every push, and a look is a system call.
@@ -40,14 +39,9 @@ class SolverProcess:
         request_reader, request_writer = ctx.Pipe(duplex=False)
         result_reader, result_writer = ctx.Pipe(duplex=False)
         self._requests = request_writer
-        self._proc = ctx.Process(
-            target=_serve,
-            args=(request_reader, result_writer, os.getpid()),
-            name='mlkm_stream_solver',
-            daemon=True,
+        self._proc = start_helper(
+            ctx, _serve, (request_reader, result_writer, os.getpid()), 'mlkm_stream_solver'
         )
-        with stop_signals_blocked():  # see mlkm_ros.lifecycle.helper_process
-            self._proc.start()
         request_reader.close()
         result_writer.close()
         #: (send end of the requests, receive end of the results) for the SolverClient

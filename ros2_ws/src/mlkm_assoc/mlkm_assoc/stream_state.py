@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -43,6 +43,13 @@ class TrackerSettings:
     segment_size: int
     seed: int
     max_uncommitted: int = 0  # StreamConfig.max_uncommitted (0: no bound) [-]
+
+    def stream_config(self) -> Any:
+        """The core's StreamConfig of these settings (imported here: the core's streaming
+        package loads only where a tracker is built)."""
+        from mlkm_core.streaming import StreamConfig
+
+        return StreamConfig(**asdict(self))
 
 
 #: A queued detection: ('det', key, sensor index, sensor id, stamp ns, velocity, position,
@@ -111,18 +118,14 @@ class TrackerState:
         FINAL); the first road of the process announces its run with an empty TrackArray,
         which tells consumers that the tracks of a run before a restart have ended."""
         answer = self.flush(time.monotonic()) if self._tracker is not None else None
-        from mlkm_core.streaming import StreamConfig, StreamTracker
+        from mlkm_core.streaming import StreamTracker
 
-        s = self._settings
-        config = StreamConfig(
-            method=s.method,
-            lag=s.lag,
-            segment_size=s.segment_size,
-            seed=s.seed,
-            max_uncommitted=s.max_uncommitted,
-        )
         self._tracker = StreamTracker(
-            layout, config, entries=entries, exits=exits, executor=self._executor
+            layout,
+            self._settings.stream_config(),
+            entries=entries,
+            exits=exits,
+            executor=self._executor,
         )
         self.run = max(time.time_ns() // 1000, self._next_id)
         self._layout = layout
@@ -130,7 +133,7 @@ class TrackerState:
         self.newest = self.committed_until = -math.inf
         if answer is None:
             data = self._encode(
-                method=s.method,
+                method=self._settings.method,
                 tracks=[],
                 unassigned=[],
                 committed_until_ns=0,
@@ -237,24 +240,31 @@ class TrackerState:
         return answer
 
     # --- output ---------------------------------------------------------------------------
+    def _publish_row(self, key: int, track_id: int) -> tuple | None:
+        """The row of detection ``key`` as published in track ``track_id`` (-1: unassigned),
+        counting a changed link as revised; None when its row is gone."""
+        row = self._rows.get(key)
+        if row is None:
+            return None
+        old = self._published.get(key)
+        if old is not None and old != track_id:
+            self.counts['links_revised'] += 1
+        self._published[key] = track_id
+        return tuple(row)
+
     def _answer(
         self, merged: _Merged, received, solve_time: float, error, flushed: bool = False
     ) -> Answer:
-        rows = self._rows
         tracks = []
         missing = 0
         for track_id, (status, keys) in merged.tracks.items():
             held = []
             for k in keys.tolist():
-                row = rows.get(k)
+                row = self._publish_row(k, track_id)
                 if row is None:
                     missing += 1
-                    continue
-                held.append(tuple(row))
-                old = self._published.get(k)
-                if old is not None and old != track_id:
-                    self.counts['links_revised'] += 1
-                self._published[k] = track_id
+                else:
+                    held.append(row)
             tracks.append((track_id, status, held))
             self._count_status(track_id, status)
             self._next_id = max(self._next_id, track_id + 1)
@@ -262,15 +272,11 @@ class TrackerState:
         for k in merged.unassigned:
             if k in merged.in_tracks:
                 continue
-            row = rows.get(k)
+            row = self._publish_row(k, -1)
             if row is None:
                 missing += 1
-                continue
-            unassigned.append(tuple(row))
-            old = self._published.get(k)
-            if old is not None and old != -1:
-                self.counts['links_revised'] += 1
-            self._published[k] = -1
+            else:
+                unassigned.append(row)
         if missing:
             self.counts['missing_rows'] = self.counts.get('missing_rows', 0) + missing
         if merged.committed_until > self.committed_until:
@@ -309,7 +315,7 @@ class TrackerState:
             committed_until=self.committed_until,
             newest_stamp=self.newest,
             working_set=0 if self._tracker is None else int(self._tracker.working_set),
-            held=len(rows),
+            held=len(self._rows),
             stats=stats,
             error=error,
         )

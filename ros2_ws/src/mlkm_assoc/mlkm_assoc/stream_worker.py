@@ -44,7 +44,7 @@ from mlkm_assoc.stream_state import (
     encode_tracks,
 )
 from mlkm_core.types import Layout
-from mlkm_ros.lifecycle import helper_process, stop_signals_blocked
+from mlkm_ros.lifecycle import helper_process, start_helper
 
 #: Queued items (detections and ticks) taken as one batch at most [-].
 MAX_BATCH = 512
@@ -64,14 +64,12 @@ class _Processes:
         self.answers, sender = ctx.Pipe(duplex=False)
         # a forked child inherits every descriptor: it closes the node's ends of its pipes
         inherited = (self.item_sender, self.answers) if ctx.get_start_method() == 'fork' else ()
-        self.proc = ctx.Process(
-            target=_serve,
-            args=(items, sender, os.getpid(), self.solver.ends, inherited),
-            name='mlkm_stream_tracker',
-            daemon=True,
+        self.proc = start_helper(
+            ctx,
+            _serve,
+            (items, sender, os.getpid(), self.solver.ends, inherited),
+            'mlkm_stream_tracker',
         )
-        with stop_signals_blocked():  # see mlkm_ros.lifecycle.helper_process
-            self.proc.start()
         sender.close()
         items.close()
 

@@ -12,6 +12,8 @@ reasons.
 from __future__ import annotations
 
 import math
+from collections import Counter
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,6 +35,50 @@ REJECT_REASONS = (
 #: Tolerance between a detection's position and its sensor's layout position [m].
 POSITION_TOLERANCE = 1e-3
 NS_PER_S = 1_000_000_000
+
+
+class Received(NamedTuple):
+    """One detection as received, before it is checked and placed."""
+
+    sensor_id: int
+    stamp_ns: int
+    position: float  # [m]
+    velocity: float  # [m/s]
+    lane: int = UNKNOWN_LANE  # -1: unknown
+    length: float = math.nan  # measured vehicle length [m]; NaN: not measured
+    received: float = 0.0  # monotonic time of arrival [s]
+
+
+class HoldsEarly:
+    """Mixin of the episode assembly and stream mode's ingest: a detection before the layout
+    is known is refused with what could be checked without the layout, or as
+    ``buffer_full`` without room, else held until the layout comes (counted
+    ``before_layout``). The class counts in ``handled`` and refuses with ``_reject``."""
+
+    handled: Counter[str]
+
+    def _reject(self, reason: str, raw: Received) -> None:
+        raise NotImplementedError
+
+    def _place(self, raw: Received) -> None:
+        raise NotImplementedError
+
+    def _place_held(self, held: list[Received]) -> None:
+        """Place the detections that were held, in arrival order (once their layout or
+        episode is known)."""
+        for raw in held:
+            self._place(raw)
+
+    def _hold_early(
+        self, raw: Received, reason: str | None, room: bool, hold: list[Received]
+    ) -> None:
+        if reason is not None:
+            self._reject(reason, raw)
+        elif not room:
+            self._reject('buffer_full', raw)
+        else:
+            self.handled['before_layout'] += 1
+            hold.append(raw)
 
 
 def same_layout(a: Layout, b: Layout) -> bool:
@@ -67,6 +113,14 @@ class DetectionCheck:
             reason = 'lane_out_of_range'
         return reason
 
+    def check(self, raw: Received) -> tuple[int, str | None]:
+        """(sensor index, None) for a valid detection; (-1, 'unknown_sensor') or (sensor
+        index, the reason) for a refused one."""
+        s = self.index.get(raw.sensor_id)
+        if s is None:
+            return -1, 'unknown_sensor'
+        return s, self.refuse(s, raw.stamp_ns, raw.position, raw.velocity, raw.lane, raw.length)
+
     def refuse(
         self, s: int, stamp_ns: int, position: float, velocity: float, lane: int, length: float
     ) -> str | None:
@@ -85,20 +139,12 @@ class DetectionCheck:
             return False
         return self.lane_counts is None or lane < self.lane_counts[s]
 
-    def describe(
-        self,
-        reason: str,
-        sensor_id: int,
-        stamp_ns: int,
-        velocity: float,
-        lane: int = UNKNOWN_LANE,
-        length: float = math.nan,
-    ) -> str:
+    def describe(self, reason: str, raw: Received) -> str:
         """One line on a refused detection and why."""
         if reason in BOUNDS_REASONS:
             detail = self.bounds.describe(reason)
         elif reason == 'lane_out_of_range':
-            s = self.index.get(sensor_id)
+            s = self.index.get(raw.sensor_id)
             known = self.lane_counts is not None and s is not None
             detail = (
                 f'lane must be -1 (unknown) or in [0, {self.lane_counts[s] - 1}]'
@@ -108,6 +154,6 @@ class DetectionCheck:
         else:
             detail = reason
         return (
-            f'sensor {sensor_id}, lane {lane}, stamp {stamp_ns} ns, velocity {velocity!r} '
-            f'm/s, length {length!r} m: {detail}'
+            f'sensor {raw.sensor_id}, lane {raw.lane}, stamp {raw.stamp_ns} ns, velocity '
+            f'{raw.velocity!r} m/s, length {raw.length!r} m: {detail}'
         )

@@ -8,7 +8,8 @@ wait set (``RCLError: ... context is not valid``) or in the middle of the clean-
 signal only sets a flag (:data:`STOP`); the main thread spins the node in short steps
 (:func:`spin`), sees the flag, leaves the loop and cleans up in order. The installed
 executables start through :func:`run`, which catches the signals before the node's module
-(and rclpy, numpy, ...) is imported.
+(and rclpy, numpy, ...) is imported (:func:`entry_point`), and a node's ``main`` is
+:func:`run_node`, or :func:`start_node` where the node ends its run itself.
 
 This module imports no rclpy at module level: the helper processes of a node use
 :func:`die_with_parent` without loading ROS.
@@ -23,9 +24,15 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
+
+#: How a node's ``main`` answers an exception of its construction: (the exception types, the
+#: text put between the executable's name and the exception's, the exit status).
+Refusal = tuple[tuple[type[BaseException], ...], str, int]
+#: Exit status of a refused parameter value.
+EXIT_BAD_PARAMETER = 2
 
 #: The signals that end a node: Ctrl-C and a polite kill.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -95,6 +102,18 @@ def run(module: str, args: list[str] | None = None) -> int:
     return main(args)
 
 
+def entry_point(module: str) -> Callable[[], int]:
+    """The console-script function of the executable whose node lives in ``module``: it
+    starts through :func:`run` (setup.py names these functions in the packages' entry.py)."""
+
+    def start() -> int:
+        return run(module)
+
+    start.__name__ = start.__qualname__ = module.rsplit('.', 1)[-1]
+    start.__doc__ = f'Run ``{module}.main`` with the stop signals caught from the start.'
+    return start
+
+
 def _exit_quietly(_signum: int, _frame: Any) -> None:
     raise SystemExit(0)
 
@@ -105,6 +124,72 @@ def init_rclpy(args: list[str] | None) -> None:
     from rclpy.signals import SignalHandlerOptions
 
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+
+
+def parameter_refusal() -> Refusal:
+    """A refused parameter value: ``<name>: <reason>`` and exit status 2."""
+    from mlkm_ros.params import ParameterError
+
+    return (ParameterError,), '', EXIT_BAD_PARAMETER
+
+
+def start_node[NodeT](
+    name: str, factory: Callable[[], NodeT], refusals: Sequence[Refusal]
+) -> tuple[NodeT | None, int]:
+    """Construct a node (after :func:`init_rclpy`): (the node, 0), or, when the constructor
+    raises one of ``refusals``' exceptions, (None, its exit status) after printing
+    ``<name>: <text><exception>`` to stderr and shutting rclpy down."""
+    import rclpy
+
+    try:
+        return factory(), 0
+    except BaseException as exc:
+        for types, text, status in refusals:
+            if isinstance(exc, types):
+                print(f'{name}: {text}{exc}', file=sys.stderr)
+                rclpy.try_shutdown()
+                return None, status
+        raise
+
+
+def run_node(
+    name: str,
+    factory: Callable[[], Any],
+    args: list[str] | None,
+    *,
+    refusals: Sequence[Refusal] = (),
+    before_init: Callable[[], None] | None = None,
+    drop_helpers: bool = False,
+    finish: Callable[[Any], int] | None = None,
+) -> int:
+    """A node's ``main``: init, construct (a refused parameter, or one of ``refusals``, ends
+    it with that exit status), spin until stopped, destroy, shut down; 0 once it ran.
+    ``before_init`` runs first (helper processes forked before any ROS thread);
+    ``drop_helpers``: after Ctrl-C the helper processes are killed, not waited for;
+    ``finish(node)``, after the spin and before the node is destroyed, returns the exit status
+    of a node that ends its run itself (0 without it)."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    # Ctrl-C and SIGTERM only end the spin (see the module docstring): exit 0, no traceback
+    with stop_signals():
+        if before_init is not None:
+            before_init()
+        init_rclpy(args)
+        node, status = start_node(name, factory, [*refusals, parameter_refusal()])
+        if node is None:
+            return status
+        try:
+            spin(node)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            if drop_helpers and STOP.requested:
+                end_helpers()  # the work in hand is not waited for
+            status = 0 if finish is None else finish(node)
+            node.destroy_node()
+            rclpy.try_shutdown()
+    return status
 
 
 def spin(node: Any, until: Callable[[], bool] | None = None) -> None:
@@ -181,6 +266,16 @@ def stop_signals_blocked() -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def start_helper(ctx: Any, target: Callable[..., None], args: tuple, name: str) -> Any:
+    """Start a daemon helper process of the node from the multiprocessing context ``ctx``,
+    with the stop signals blocked while it starts (:func:`stop_signals_blocked`); ``target``
+    calls :func:`helper_process` first. Returns the started process."""
+    proc = ctx.Process(target=target, args=args, name=name, daemon=True)
+    with stop_signals_blocked():
+        proc.start()
+    return proc
 
 
 def helper_process(parent: int) -> None:

@@ -198,3 +198,40 @@ def declare_strings(node: Node, name: str, description: str) -> tuple[str, ...]:
     if value.type_ != Parameter.Type.STRING_ARRAY:
         raise ConfigError(f'parameter {name} must be a list of strings, got {value.value!r}')
     return tuple(v for v in value.value if v)
+
+
+@dataclass(frozen=True)
+class StartupParam:
+    """One row of a table of read-only parameters read once at start-up: its kind follows
+    its default (a number, integer when ``integer``; a bool; a string; ``()`` for a string
+    list, empty unless set), validated by the single declarations above."""
+
+    name: str
+    default: Any
+    description: str  # meaning and unit, e.g. 'graph poll period [s]'
+    low: float = -math.inf  # inclusive range of a number
+    high: float = math.inf
+    integer: bool = False
+
+    def declare(self, node: Node) -> Any:
+        if isinstance(self.default, tuple):
+            return declare_strings(node, self.name, self.description)
+        if isinstance(self.default, bool):
+            return declare_bool(node, self.name, self.default, self.description)
+        if isinstance(self.default, str):
+            return declare_string(node, self.name, self.default, self.description)
+        return declare_number(
+            node,
+            self.name,
+            self.default,
+            self.description,
+            self.low,
+            self.high,
+            integer=self.integer,
+        )
+
+
+def declare_startup(node: Node, table: Sequence[StartupParam]) -> dict[str, Any]:
+    """Declare every row of ``table`` on ``node``; {name: value}. Raises ConfigError when a
+    value is refused."""
+    return {row.name: row.declare(node) for row in table}

@@ -34,21 +34,21 @@ def detections_topic(sensor_name: str) -> str:
     return f'{DETECTIONS_PREFIX}/{sensor_name}/detections'
 
 
+def _keep_last(depth: int, durability: DurabilityPolicy) -> QoSProfile:
+    """A reliable KEEP_LAST profile of ``depth`` messages."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=durability,
+    )
+
+
 #: /road/sensor_layout: reliable, transient_local, depth 1.
-LAYOUT_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+LAYOUT_QOS = _keep_last(1, DurabilityPolicy.TRANSIENT_LOCAL)
 
 #: /road/episode: reliable, transient_local (the last LATCHED_HISTORY_DEPTH messages).
-EPISODE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=LATCHED_HISTORY_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+EPISODE_QOS = _keep_last(LATCHED_HISTORY_DEPTH, DurabilityPolicy.TRANSIENT_LOCAL)
 
 #: Detections, ground truth and tracks: reliable, volatile, KEEP_ALL (nothing lost).
 STREAM_QOS = QoSProfile(
@@ -61,25 +61,10 @@ GROUND_TRUTH_QOS = STREAM_QOS
 TRACKS_QOS = STREAM_QOS
 
 #: /mlkm/score: reliable, transient_local (the last LATCHED_HISTORY_DEPTH episodes).
-SCORE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=LATCHED_HISTORY_DEPTH,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+SCORE_QOS = _keep_last(LATCHED_HISTORY_DEPTH, DurabilityPolicy.TRANSIENT_LOCAL)
 
 #: /diagnostics: reliable, volatile; periodic status, so a bounded history is enough.
-DIAGNOSTICS_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+DIAGNOSTICS_QOS = _keep_last(100, DurabilityPolicy.VOLATILE)
 
 #: /clock: reliable writer, depth 1 (matches the usual best-effort clock readers too).
-CLOCK_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+CLOCK_QOS = _keep_last(1, DurabilityPolicy.VOLATILE)

@@ -1,13 +1,6 @@
-"""Entry points of the installed node executables: SIGINT and SIGTERM are caught before the
-node's module (rclpy, numpy, ...) is imported, so a Ctrl-C at any moment of the start-up ends
-the process with exit 0 and no traceback (mlkm_ros.lifecycle)."""
+"""The console scripts ``sensor_sim`` and ``sumo_sensors`` (named by setup.py)."""
 
-from mlkm_ros.lifecycle import run
+from mlkm_ros.lifecycle import entry_point
 
-
-def sensor_sim() -> int:
-    return run('road_sensors.sensor_sim')
-
-
-def sumo_sensors() -> int:
-    return run('road_sensors.sumo_sensors')
+sensor_sim = entry_point('road_sensors.sensor_sim')
+sumo_sensors = entry_point('road_sensors.sumo_sensors')

@@ -28,7 +28,6 @@ import sys
 from typing import Any
 
 import numpy as np
-import rclpy
 
 from mlkm_core.simulator import (
     StreamDetection,
@@ -41,7 +40,6 @@ from mlkm_core.simulator import (
 from mlkm_core.types import Dataset
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle
-from mlkm_ros.params import ParameterError
 from road_sensors.sim_params import _NODE_SPECS, SensorSimConfig, _sim_specs
 from road_sensors.source import SensorSource
 
@@ -168,27 +166,11 @@ class SensorSimNode(SensorSource):
 
 
 def main(args: list[str] | None = None) -> int:
-    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle), also while the node is set up
-    # or waits for subscribers; the publishing thread shuts the context down when it is done.
-    with lifecycle.stop_signals():
-        lifecycle.init_rclpy(args)
-        node: SensorSimNode | None = None
-        error: str | None = None
-        try:
-            node = SensorSimNode()
-            lifecycle.spin(node)
-        except ParameterError as exc:
-            error = str(exc)
-            return 2
-        finally:
-            if node is not None:
-                node.stop()  # first: the thread must not report an interruption as an error
-                error = node.error
-                node.destroy_node()
-            rclpy.try_shutdown()
-            if error:
-                print(f'sensor_sim: {error}', file=sys.stderr)
-    return 1 if error else 0
+    # Ctrl-C and SIGTERM only end the spin, also while the node is set up or waits for
+    # subscribers; the publishing thread shuts the context down when it is done.
+    return lifecycle.run_node(
+        'sensor_sim', SensorSimNode, args, finish=lambda node: node.finish('sensor_sim')
+    )
 
 
 if __name__ == '__main__':

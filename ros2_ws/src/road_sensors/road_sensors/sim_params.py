@@ -9,7 +9,8 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from mlkm_core.simulator import SimConfig
-from mlkm_ros.params import ParameterError, ParamSpec, non_negative
+from mlkm_ros.params import ParameterError, ParamSpec
+from road_sensors.delivery import DeliveryConfig, delivery_specs
 
 #: Descriptions (with units) and inclusive ranges of the simulator's settings.
 _SIM_DOCS: dict[str, tuple[str, float | None, float | None]] = {
@@ -89,15 +90,6 @@ _NODE_SPECS = [
     ),
     ParamSpec('episodes', 3, 'number of episodes to publish [-]', 1, 1000000, read_only=True),
     ParamSpec(
-        'real_time_factor',
-        0.0,
-        'pacing: passage seconds per wall second; 1.0 = real time, 0 = as fast as '
-        'delivery allows (nothing is lost either way) [-]',
-        0.0,
-        1e6,
-        check=non_negative,
-    ),
-    ParamSpec(
         'episode_gap',
         10.0,
         'passage-time gap between the last detection of one episode and the first of the next [s]',
@@ -105,61 +97,28 @@ _NODE_SPECS = [
         1e9,
         read_only=True,
     ),
-    ParamSpec('publish_clock', False, 'publish /clock with the passage time [-]', read_only=True),
-    ParamSpec(
-        'wait_for_subscribers',
-        1,
-        'before the first episode, wait until every detection topic has at least this '
-        'many subscribers (association node, recorder, ...) [-]',
-        0,
-        1000,
-        read_only=True,
-    ),
-    ParamSpec(
-        'wait_for_truth_subscribers',
-        0,
-        'before the first episode, wait until /road/ground_truth has at least this many '
-        'subscribers (scorer, recorder, ...) [-]',
-        0,
-        1000,
-        read_only=True,
-    ),
-    ParamSpec(
-        'wait_timeout',
-        60.0,
-        'give up waiting for subscribers after this long and fail; 0 = wait forever [s]',
-        0.0,
-        1e9,
-        read_only=True,
-    ),
-    ParamSpec(
-        'start_delay',
-        0.0,
-        'extra pause after the subscribers matched, before the first episode [s]',
-        0.0,
-        1e6,
-        read_only=True,
-    ),
-    ParamSpec(
-        'ack_timeout',
-        60.0,
-        'at each episode end, wait at most this long for every subscriber to '
-        'acknowledge every message [s]',
-        0.0,
-        1e9,
-        read_only=True,
-    ),
-    ParamSpec(
-        'keep_running',
-        False,
-        'stay up after the last episode (the latched layout stays available) [-]',
-        read_only=True,
+    *delivery_specs(
+        {
+            'real_time_factor': 'pacing: passage seconds per wall second; 1.0 = real time, 0 = '
+            'as fast as delivery allows (nothing is lost either way) [-]',
+            'publish_clock': 'publish /clock with the passage time [-]',
+            'wait_for_subscribers': 'before the first episode, wait until every detection topic '
+            'has at least this many subscribers (association node, recorder, ...) [-]',
+            'wait_for_truth_subscribers': 'before the first episode, wait until '
+            '/road/ground_truth has at least this many subscribers (scorer, recorder, ...) [-]',
+            'start_delay': 'extra pause after the subscribers matched, before the first episode '
+            '[s]',
+            'ack_timeout': 'at each episode end, wait at most this long for every subscriber to '
+            'acknowledge every message [s]',
+            'keep_running': 'stay up after the last episode (the latched layout stays '
+            'available) [-]',
+        }
     ),
 ]
 
 
 @dataclass(frozen=True)
-class SensorSimConfig:
+class SensorSimConfig(DeliveryConfig):
     """Everything the node needs, from its parameters (read once at startup)."""
 
     sim: SimConfig
@@ -168,15 +127,7 @@ class SensorSimConfig:
     arrival_rate: float
     seed: int
     episodes: int
-    real_time_factor: float
     episode_gap: float
-    publish_clock: bool
-    wait_for_subscribers: int
-    wait_for_truth_subscribers: int
-    wait_timeout: float
-    start_delay: float
-    ack_timeout: float
-    keep_running: bool
 
     @staticmethod
     def from_values(values: dict[str, Any]) -> SensorSimConfig:

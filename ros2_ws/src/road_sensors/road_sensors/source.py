@@ -12,10 +12,11 @@ error and exit status. A subclass makes its detections: it implements ``_publish
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -30,22 +31,10 @@ from mlkm_ros import qos
 from mlkm_ros.params import ParamSpec, declare_parameters
 from mlkm_ros.publishing import PublishTimeout, ReliablePublisher, total_stats, wait_all_acked
 from road_sensor_msgs.msg import Detection, EpisodeInfo, GroundTruth, SensorLayout
+from road_sensors.delivery import DeliveryConfig
 
 #: Smallest passage-time step between two /clock messages [ns].
 CLOCK_STEP_NS = 10_000_000
-
-
-class SourceConfig(Protocol):
-    """The delivery settings every source's frozen config carries."""
-
-    real_time_factor: float
-    publish_clock: bool
-    wait_for_subscribers: int
-    wait_for_truth_subscribers: int
-    wait_timeout: float
-    start_delay: float
-    ack_timeout: float
-    keep_running: bool
 
 
 class SensorSource(Node):
@@ -79,7 +68,7 @@ class SensorSource(Node):
         """Create the publishers of ``layout``'s stations and publish ``layout_msg``. A
         continuous (not ``episodic``) source has no /road/episode publisher at all (receivers
         in mode auto tell the two kinds of source apart by it)."""
-        cfg: SourceConfig = self._config
+        cfg: DeliveryConfig = self._config
         self._layout_pub: Publisher = self.create_publisher(
             SensorLayout, qos.LAYOUT_TOPIC, qos.LAYOUT_QOS
         )
@@ -154,7 +143,7 @@ class SensorSource(Node):
         return least, truth
 
     def _wait_for_subscribers(self) -> bool:
-        cfg: SourceConfig = self._config
+        cfg: DeliveryConfig = self._config
         deadline = None if cfg.wait_timeout <= 0 else time.monotonic() + cfg.wait_timeout
         announced = False
         while not self._interrupted():
@@ -257,7 +246,7 @@ class SensorSource(Node):
             self._error, self._exit_code = message, code
 
     def _run(self) -> None:
-        cfg: SourceConfig = self._config
+        cfg: DeliveryConfig = self._config
         try:
             if not self._wait_for_subscribers():
                 return
@@ -300,6 +289,16 @@ class SensorSource(Node):
         """Wait until the run ended (finished, failed or interrupted); False on timeout."""
         self._thread.join(timeout)
         return not self._thread.is_alive()
+
+    def finish(self, name: str, prefix: str = '') -> int:
+        """After the spin: stop the publishing thread (first: it must not report the
+        interruption as an error), print the run's error as ``<name>: <prefix><error>`` and
+        return the exit status."""
+        self.stop()
+        if self._error:
+            print(f'{name}: {prefix}{self._error}', file=sys.stderr)
+            return self._exit_code
+        return 0
 
     def stop(self) -> None:
         """Interrupt the publishing thread and wait for it."""

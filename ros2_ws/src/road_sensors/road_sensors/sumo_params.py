@@ -10,6 +10,7 @@ from typing import Any
 
 from mlkm_ros.params import ParameterError, ParamSpec, non_negative
 from mlkm_sumo import SCENARIOS, MeasurementConfig
+from road_sensors.delivery import DeliveryConfig, delivery_specs
 
 MODES = ('episodes', 'continuous')
 
@@ -100,55 +101,21 @@ SPECS = [
         'as a false alarm in ground truth) [-]',
         read_only=True,
     ),
-    ParamSpec(
-        'real_time_factor',
-        0.0,
-        'pacing: simulated seconds per wall second; 1.0 = real time, 0 = as fast as delivery '
-        'allows (nothing is lost either way) [-]',
-        0.0,
-        1e6,
-        check=non_negative,
-    ),
-    ParamSpec('publish_clock', False, 'publish /clock with the SUMO time [-]', read_only=True),
-    ParamSpec(
-        'wait_for_subscribers',
-        1,
-        'before the start, wait until every detection topic has at least this many '
-        'subscribers [-]',
-        0,
-        1000,
-        True,
-    ),
-    ParamSpec(
-        'wait_for_truth_subscribers',
-        0,
-        'before the start, wait until /road/ground_truth has at least this many subscribers [-]',
-        0,
-        1000,
-        True,
-    ),
-    ParamSpec(
-        'wait_timeout',
-        60.0,
-        'give up waiting for subscribers after this long and fail; 0 = wait forever [s]',
-        0.0,
-        1e9,
-        True,
-    ),
-    ParamSpec('start_delay', 0.0, 'extra pause after the subscribers matched [s]', 0.0, 1e6, True),
-    ParamSpec(
-        'ack_timeout',
-        60.0,
-        'at the end, wait at most this long for every subscriber to acknowledge every message [s]',
-        0.0,
-        1e9,
-        True,
-    ),
-    ParamSpec(
-        'keep_running',
-        False,
-        'stay up after the last message (the latched layout stays available) [-]',
-        read_only=True,
+    *delivery_specs(
+        {
+            'real_time_factor': 'pacing: simulated seconds per wall second; 1.0 = real time, 0 = '
+            'as fast as delivery allows (nothing is lost either way) [-]',
+            'publish_clock': 'publish /clock with the SUMO time [-]',
+            'wait_for_subscribers': 'before the start, wait until every detection topic has at '
+            'least this many subscribers [-]',
+            'wait_for_truth_subscribers': 'before the start, wait until /road/ground_truth has at '
+            'least this many subscribers [-]',
+            'start_delay': 'extra pause after the subscribers matched [s]',
+            'ack_timeout': 'at the end, wait at most this long for every subscriber to '
+            'acknowledge every message [s]',
+            'keep_running': 'stay up after the last message (the latched layout stays '
+            'available) [-]',
+        }
     ),
     ParamSpec(
         'cache_dir',
@@ -160,7 +127,7 @@ SPECS = [
 
 
 @dataclass(frozen=True)
-class SumoSensorsConfig:
+class SumoSensorsConfig(DeliveryConfig):
     """Everything the node needs, from its parameters (read once at startup)."""
 
     scenario: str
@@ -174,15 +141,19 @@ class SumoSensorsConfig:
     flow: float | None  # None: the scenario's
     step_length: float
     measurement: MeasurementConfig
-    real_time_factor: float
-    publish_clock: bool
-    wait_for_subscribers: int
-    wait_for_truth_subscribers: int
-    wait_timeout: float
-    start_delay: float
-    ack_timeout: float
-    keep_running: bool
     cache_dir: str | None
+
+    def sumo_options(self) -> dict[str, Any]:
+        """The settings ``mlkm_sumo.episodes`` and ``mlkm_sumo.PassageStream`` share."""
+        return {
+            'n_stations': self.stations,
+            'seed': self.seed,
+            'stations_at': self.stations_at,
+            'measurement': self.measurement,
+            'cache_dir': self.cache_dir,
+            'step_length': self.step_length,
+            'flow': self.flow,
+        }
 
     @staticmethod
     def from_values(v: dict[str, Any]) -> SumoSensorsConfig:
@@ -209,13 +180,6 @@ class SumoSensorsConfig:
             flow=v['flow'] or None,
             step_length=v['step_length'],
             measurement=measurement,
-            real_time_factor=v['real_time_factor'],
-            publish_clock=v['publish_clock'],
-            wait_for_subscribers=v['wait_for_subscribers'],
-            wait_for_truth_subscribers=v['wait_for_truth_subscribers'],
-            wait_timeout=v['wait_timeout'],
-            start_delay=v['start_delay'],
-            ack_timeout=v['ack_timeout'],
-            keep_running=v['keep_running'],
             cache_dir=v['cache_dir'] or None,
+            **DeliveryConfig.values(v),
         )

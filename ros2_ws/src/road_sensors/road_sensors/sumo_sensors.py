@@ -33,7 +33,6 @@ import sys
 from typing import Any
 
 import numpy as np
-import rclpy
 
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle
@@ -106,18 +105,7 @@ class SumoSensorsNode(SensorSource):
 
     def _run_episodes(self) -> bool:
         cfg: SumoSensorsConfig = self._config
-        batches = episodes(
-            cfg.scenario,
-            cfg.vehicles,
-            cfg.episodes,
-            cfg.stations,
-            cfg.seed,
-            cfg.stations_at,
-            cfg.measurement,
-            cfg.cache_dir,
-            cfg.step_length,
-            cfg.flow,
-        )
+        batches = episodes(cfg.scenario, cfg.vehicles, cfg.episodes, **cfg.sumo_options())
         with contextlib.closing(batches):  # an early stop closes SUMO
             for k, dataset in enumerate(batches):
                 if self._interrupted() or not self._publish_episode(k, dataset):
@@ -164,17 +152,7 @@ class SumoSensorsNode(SensorSource):
 
     def _stream(self) -> bool:
         cfg: SumoSensorsConfig = self._config
-        stream = PassageStream(
-            cfg.scenario,
-            cfg.stations,
-            cfg.seed,
-            cfg.duration,
-            cfg.stations_at,
-            cfg.measurement,
-            cfg.cache_dir,
-            cfg.step_length,
-            cfg.flow,
-        )
+        stream = PassageStream(cfg.scenario, duration=cfg.duration, **cfg.sumo_options())
         targets: dict[str, int] = {}  # SUMO id -> target id of this run
         next_log = PROGRESS_EVERY
         passages = iter(stream)
@@ -201,28 +179,15 @@ class SumoSensorsNode(SensorSource):
 
 
 def main(args: list[str] | None = None) -> int:
-    # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle), also while the node is set up
-    # or waits for subscribers; the publishing thread shuts the context down when it is done.
-    with lifecycle.stop_signals():
-        lifecycle.init_rclpy(args)
-        node: SumoSensorsNode | None = None
-        error: str | None = None
-        code = 0
-        try:
-            node = SumoSensorsNode()
-            lifecycle.spin(node)
-        except (ParameterError, SumoError) as exc:
-            error, code = str(exc), EXIT_SUMO
-        finally:
-            if node is not None:
-                node.stop()  # first: the thread must not report an interruption as an error
-                error, code = node.error, node.exit_code
-                node.destroy_node()
-            rclpy.try_shutdown()
-    if error:
-        print(f'sumo_sensors: error: {error}', file=sys.stderr)
-        return code
-    return 0
+    # Ctrl-C and SIGTERM only end the spin, also while the node is set up or waits for
+    # subscribers; the publishing thread shuts the context down when it is done.
+    return lifecycle.run_node(
+        'sumo_sensors',
+        SumoSensorsNode,
+        args,
+        refusals=[((ParameterError, SumoError), 'error: ', EXIT_SUMO)],
+        finish=lambda node: node.finish('sumo_sensors', 'error: '),
+    )
 
 
 if __name__ == '__main__':

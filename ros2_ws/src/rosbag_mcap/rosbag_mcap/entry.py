@@ -1,13 +1,6 @@
-"""Entry points of the installed node executables: SIGINT and SIGTERM are caught before the
-node's module (rclpy, numpy, ...) is imported, so a Ctrl-C at any moment of the start-up ends
-the process with exit 0 and no traceback (mlkm_ros.lifecycle)."""
+"""The console scripts ``bag_recorder`` and ``bag_player`` (named by setup.py)."""
 
-from mlkm_ros.lifecycle import run
+from mlkm_ros.lifecycle import entry_point
 
-
-def bag_recorder() -> int:
-    return run('rosbag_mcap.recorder')
-
-
-def bag_player() -> int:
-    return run('rosbag_mcap.player')
+bag_recorder = entry_point('rosbag_mcap.recorder')
+bag_player = entry_point('rosbag_mcap.player')

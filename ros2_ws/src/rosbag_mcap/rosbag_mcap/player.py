@@ -21,33 +21,28 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import rclpy
-from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 
 from mlkm_ros import lifecycle
-from mlkm_ros.params import (
-    ConfigError,
-    declare_bool,
-    declare_number,
-    declare_string,
-    declare_strings,
-)
+from mlkm_ros.params import ConfigError, declare_startup
 from mlkm_ros.publishing import PublishTimeout, ReliablePublisher
 from rosbag_mcap.definitions import DefinitionCache
+from rosbag_mcap.metadata import BagError, replay_qos
 from rosbag_mcap.migrate import Migration, MigrationError, needs_migration
+from rosbag_mcap.reader import BagReader
 from rosbag_mcap.ros_glue import (
-    EXIT_BAD_PARAMETER,
     EXIT_OK,
     EXIT_PARTIAL,
     EXIT_REFUSED,
     TopicSelection,
     import_message_type,
     profile_from_spec,
+    start_tool,
 )
-from rosbag_mcap.storage import BagError, BagReader, replay_qos
+from rosbag_mcap.settings import PLAYER_PARAMS
 
 ACK_TIMEOUT = 10.0  # [s] longest wait for subscribers to acknowledge before going on
 
@@ -83,75 +78,29 @@ class BagPlayer(Node):
 
     def __init__(self) -> None:
         super().__init__('bag_player')
-        bag = declare_string(self, 'bag', '', 'Bag directory or .mcap file to play (required).')
-        self._rate = declare_number(
-            self,
-            'rate',
-            1.0,
-            'Playback speed factor: 1.0 = recorded timing, 2.0 = twice as fast; 0 = as fast '
-            'as the middleware takes the messages (keep_all: blocks, never drops).',
-            0.0,
-            1000.0,
-        )
-        self._loop = declare_bool(self, 'loop', False, 'Play the bag again and again.')
-        self._start_offset = declare_number(
-            self, 'start_offset', 0.0, 'Skip this much of the bag from its start [s].', 0.0, 1e9
-        )
-        topics = declare_strings(self, 'topics', 'Topics to play; empty: all (see regexes).')
-        include = declare_string(
-            self, 'include_regex', '', 'Also play topics matching this Python regex (re.search).'
-        )
-        exclude = declare_string(
-            self, 'exclude_regex', '', 'Never play topics matching this Python regex (re.search).'
-        )
-        remap = declare_strings(
-            self,
-            'remap',
-            "Topic renames 'from:=to' applied to recorded names "
-            '(ROS remapping -r from:=to works as well).',
-        )
-        self._publish_clock = declare_bool(
-            self, 'publish_clock', False, 'Publish the bag time on /clock while playing.'
-        )
-        self._clock_rate = declare_number(
-            self, 'clock_rate', 40.0, 'How often /clock is published [Hz].', 0.1, 1000.0
-        )
-        self._wait_for_subscribers = declare_number(
-            self,
-            'wait_for_subscribers',
-            0,
-            'Before playing, wait until every played volatile topic has at least this many '
-            'matched subscriptions (or wait_timeout passes) [-].',
-            0,
-            1000,
-            integer=True,
-        )
-        self._wait_timeout = declare_number(
-            self,
-            'wait_timeout',
-            30.0,
-            'Longest wait for subscribers before playing anyway [s]; 0 = no limit (wait '
-            'until they match or the player is stopped).',
-            0.0,
-            1e6,
-        )
-        self._linger = declare_number(
-            self,
-            'linger',
-            0.0,
-            'Stay up this long after the last message, so that late subscribers still get '
-            'the latched (transient_local) topics [s]; -1 = until interrupted.',
-            -1.0,
-            1e9,
-        )
+        values = declare_startup(self, PLAYER_PARAMS)
+        bag: str = values['bag']
+        self._rate: float = values['rate']
+        self._loop: bool = values['loop']
+        self._start_offset: float = values['start_offset']
+        self._publish_clock: bool = values['publish_clock']
+        self._clock_rate: float = values['clock_rate']
+        self._wait_for_subscribers: int = values['wait_for_subscribers']
+        self._wait_timeout: float = values['wait_timeout']
+        self._linger: float = values['linger']
         if not bag:
             raise ConfigError(
                 'parameter bag refused: it is required '
                 '(--ros-args -p bag:=<bag directory or .mcap file>)'
             )
-        remaps = parse_remaps(remap)
+        remaps = parse_remaps(values['remap'])
         try:
-            selection = TopicSelection(tuple(topics), include, exclude, include_hidden=True)
+            selection = TopicSelection(
+                values['topics'],
+                values['include_regex'],
+                values['exclude_regex'],
+                include_hidden=True,
+            )
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         try:
@@ -382,19 +331,10 @@ class BagPlayer(Node):
 def main(args: list[str] | None = None) -> int:
     # Ctrl-C and SIGTERM only end the spin (mlkm_ros.lifecycle): exit 0, no traceback
     with lifecycle.stop_signals():
-        lifecycle.init_rclpy(args)
-        node = None
-        status = EXIT_OK
-        try:
-            node = BagPlayer()
-        except (ConfigError, ParameterException) as exc:
-            print(f'bag_player: {exc}', file=sys.stderr)
-            status = EXIT_BAD_PARAMETER
-        except RefusedError as exc:
-            print(f'bag_player: refusing to play: {exc}', file=sys.stderr)
-            status = EXIT_REFUSED
+        node, status = start_tool(
+            'bag_player', BagPlayer, args, RefusedError, 'refusing to play: '
+        )
         if node is None:
-            rclpy.try_shutdown()
             return status
         node.start()
         try:

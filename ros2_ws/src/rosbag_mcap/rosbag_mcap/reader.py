@@ -23,7 +23,7 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, ChunkIndex, Message, Schema
 
 from rosbag_mcap import mcapfile
-from rosbag_mcap.storage import (
+from rosbag_mcap.metadata import (
     MESSAGE_ENCODING,
     METADATA_FILE,
     PROFILE,

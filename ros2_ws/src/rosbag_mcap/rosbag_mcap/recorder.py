@@ -23,31 +23,22 @@ import time
 from pathlib import Path
 
 import rclpy
-from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 from rclpy.task import Future
 
-from mlkm_ros.params import (
-    ConfigError,
-    declare_bool,
-    declare_number,
-    declare_string,
-    declare_strings,
-)
+from mlkm_ros.params import ConfigError, declare_startup
 from rosbag_mcap.definitions import DefinitionCache, DefinitionNotFoundError
 from rosbag_mcap.ros_glue import (
-    EXIT_BAD_PARAMETER,
-    EXIT_OK,
-    EXIT_REFUSED,
     EXIT_WRITE_FAILED,
     TopicSelection,
     import_message_type,
     request_profile,
     spec_from_profile,
+    start_tool,
 )
+from rosbag_mcap.settings import RECORDER_PARAMS
 from rosbag_mcap.storage import BagError, BagWriteError, BagWriter, default_bag_name
 
 
@@ -56,91 +47,20 @@ class BagRecorder(Node):
 
     def __init__(self) -> None:
         super().__init__('bag_recorder')
-        output = declare_string(
-            self,
-            'output',
-            '',
-            'Bag directory to create (must not exist or be empty); '
-            'empty: bags/rosbag2_<local time> under the working directory.',
-        )
-        topics = declare_strings(
-            self, 'topics', 'Topics to record; empty (and no include_regex): all topics.'
-        )
-        include = declare_string(
-            self,
-            'include_regex',
-            '',
-            'Also record topics whose name matches this Python regex (re.search).',
-        )
-        exclude = declare_string(
-            self,
-            'exclude_regex',
-            '',
-            'Never record topics whose name matches this Python regex (re.search).',
-        )
-        hidden = declare_bool(
-            self,
-            'include_hidden_topics',
-            False,
-            "Record hidden topics (a name token starting with '_') when recording all.",
-        )
-        self._discovery_period = declare_number(
-            self,
-            'discovery_period',
-            0.5,
-            'Period of the graph poll that finds new topics [s].',
-            0.05,
-            60.0,
-        )
-        self._flush_period = declare_number(
-            self,
-            'flush_period',
-            1.0,
-            'Period of closing the current MCAP chunk, so that a recording killed without '
-            'a clean stop keeps what was flushed [s]; 0 = only at the end.',
-            0.0,
-            3600.0,
-        )
-        self._max_duration = declare_number(
-            self,
-            'max_duration',
-            0.0,
-            'Stop recording after this long [s]; 0 = until SIGINT or SIGTERM.',
-            0.0,
-            1e9,
-        )
-        self._stop_drain_timeout = declare_number(
-            self,
-            'stop_drain_timeout',
-            30.0,
-            'On stop, keep taking the messages already delivered until none arrives for '
-            'stop_idle seconds, but at most this long [s]; a second SIGINT/SIGTERM cuts it '
-            'short.',
-            0.0,
-            3600.0,
-        )
-        self._stop_idle = declare_number(
-            self,
-            'stop_idle',
-            0.5,
-            'On stop, the drain ends after this long without a new message [s].',
-            0.01,
-            60.0,
-        )
-        compression = declare_string(
-            self, 'compression', 'zstd', 'MCAP chunk compression: zstd, lz4 or none.'
-        )
-        chunk_size = declare_number(
-            self,
-            'chunk_size',
-            768 * 1024,
-            'MCAP chunk size before compression [byte].',
-            1024,
-            1 << 30,
-            integer=True,
-        )
+        values = declare_startup(self, RECORDER_PARAMS)
+        output, compression = values['output'], values['compression']
+        self._discovery_period: float = values['discovery_period']
+        self._flush_period: float = values['flush_period']
+        self._max_duration: float = values['max_duration']
+        self._stop_drain_timeout: float = values['stop_drain_timeout']
+        self._stop_idle: float = values['stop_idle']
         try:
-            self._selection = TopicSelection(tuple(topics), include, exclude, hidden)
+            self._selection = TopicSelection(
+                values['topics'],
+                values['include_regex'],
+                values['exclude_regex'],
+                values['include_hidden_topics'],
+            )
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         if compression not in ('zstd', 'lz4', 'none'):
@@ -148,7 +68,9 @@ class BagRecorder(Node):
                 f'parameter compression={compression!r} refused: expected zstd, lz4 or none'
             )
         self._output = Path(output) if output else Path('bags') / default_bag_name()
-        self._writer = BagWriter(self._output, compression=compression, chunk_size=chunk_size)
+        self._writer = BagWriter(
+            self._output, compression=compression, chunk_size=values['chunk_size']
+        )
         self._use_sim_time = bool(self.get_parameter('use_sim_time').value)
         self._definitions = DefinitionCache()
         self._recording: dict[str, Subscription] = {}
@@ -363,19 +285,8 @@ def main(args: list[str] | None = None) -> int:
     early: list[int] = []
     signal.signal(signal.SIGINT, lambda signum, _frame: early.append(signum))
     signal.signal(signal.SIGTERM, lambda signum, _frame: early.append(signum))
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
-    status = EXIT_OK
-    try:
-        node = BagRecorder()
-    except (ConfigError, ParameterException) as exc:
-        print(f'bag_recorder: {exc}', file=sys.stderr)
-        status = EXIT_BAD_PARAMETER
-    except BagError as exc:
-        print(f'bag_recorder: cannot record: {exc}', file=sys.stderr)
-        status = EXIT_REFUSED
+    node, status = start_tool('bag_recorder', BagRecorder, args, BagError, 'cannot record: ')
     if node is None:
-        rclpy.try_shutdown()
         return status
     signal.signal(signal.SIGINT, node.request_stop)
     signal.signal(signal.SIGTERM, node.request_stop)

@@ -27,10 +27,14 @@ import yaml
 from mcap.reader import SeekingReader
 
 from rosbag_mcap import mcapfile
+from rosbag_mcap.metadata import (
+    METADATA_FILE,
+    RESERVE_FILE,
+    BagError,
+    dump_metadata,
+    metadata_dict,
+)
 from rosbag_mcap.reader import topics_of
-from rosbag_mcap.storage import METADATA_FILE, BagError, dump_metadata, metadata_dict
-
-RESERVE_FILE = '.bag_recorder_reserve'  # the recorder's disk reserve (see storage.BagWriter)
 
 
 @dataclass

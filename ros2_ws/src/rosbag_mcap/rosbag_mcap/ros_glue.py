@@ -1,13 +1,15 @@
-"""What the recorder and the player share that touches rclpy: QoS conversion, type import."""
+"""What the recorder and the player share that touches rclpy: QoS conversion, type import,
+the start of their node and their exit statuses."""
 
 from __future__ import annotations
 
 import importlib
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -17,6 +19,8 @@ from rclpy.qos import (
 )
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 
+from mlkm_ros import lifecycle
+from mlkm_ros.params import ConfigError
 from rosbag_mcap.definitions import split_type_name
 from rosbag_mcap.storage import INFINITE_NS, QosSpec
 
@@ -142,3 +146,24 @@ EXIT_REFUSED = 1  # the bag (or output) cannot be used; nothing played / recorde
 EXIT_BAD_PARAMETER = 2  # a parameter value is invalid
 EXIT_PARTIAL = 3  # bag_player: the bag is damaged; what was readable was played
 EXIT_WRITE_FAILED = 4  # bag_recorder: writing failed (disk full); the bag keeps what was written
+
+
+def start_tool[NodeT](
+    name: str,
+    factory: Callable[[], NodeT],
+    args: list[str] | None,
+    refused: type[BaseException],
+    text: str,
+) -> tuple[NodeT | None, int]:
+    """rclpy.init and the construction of a bag tool's node (mlkm_ros.lifecycle.start_node):
+    a refused parameter exits EXIT_BAD_PARAMETER, ``refused`` (the bag cannot be used)
+    EXIT_REFUSED with ``<name>: <text><reason>``."""
+    lifecycle.init_rclpy(args)
+    return lifecycle.start_node(
+        name,
+        factory,
+        [
+            ((ConfigError, ParameterException), '', EXIT_BAD_PARAMETER),
+            ((refused,), text, EXIT_REFUSED),
+        ],
+    )
