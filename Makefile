@@ -1,15 +1,25 @@
 # Every target that needs the environment depends on `setup`, so each one works as the
-# first command on a fresh clone. See README.md.
+# first command on a fresh clone; `lint` needs no ROS (scripts/lint.sh). See README.md.
 SHELL := /bin/bash
 .SHELLFLAGS := -eo pipefail -c
 .DEFAULT_GOAL := help
 ENV := source ./env.sh >/dev/null &&
 BAG ?= bags/sample
 
-.PHONY: help setup demo demo-stream test lint experiments replay bench clean
+.PHONY: help setup demo demo-stream test test-fast lint experiments replay bench clean
 
 help:
-	@echo 'make setup | demo | demo-stream | test | lint | experiments | replay BAG=<dir> | bench | clean'
+	@echo 'make <target>:'
+	@echo '  setup          .venv, ROS 2 Jazzy, pinned deps, colcon build of ros2_ws (idempotent)'
+	@echo '  demo           the live node graph on the default scenario; a bag in bags/'
+	@echo '  demo-stream    the open road in stream mode (SUMO sensors); a bag in bags/'
+	@echo '  test           ruff and every test tier (what CI runs: .ci/run)'
+	@echo '  test-fast      the tests that need no ROS graph (tests/unit, not marked slow)'
+	@echo '  lint           ruff check and format check, without building ROS (scripts/lint.sh)'
+	@echo '  experiments    the paper'"'"'s experiments into results/paper/'
+	@echo '  replay BAG=<dir>  replay a bag into fresh nodes, print accuracy (default bags/sample)'
+	@echo '  bench          benchmarks into results/bench/ (never part of make test)'
+	@echo '  clean          remove the colcon build (ros2_ws/build, install, log)'
 
 setup:
 	@bash scripts/setup.sh
@@ -23,8 +33,13 @@ demo-stream: setup
 test: setup
 	@$(ENV) ruff check . && ruff format --check . && python -m pytest tests
 
-lint: setup
-	@$(ENV) ruff check . && ruff format --check .
+# tests/unit: ROS-free and in-process tests that start no node and no DDS graph (the tiers
+# by path: docs/testing.md); tests marked slow are left to `make test`.
+test-fast: setup
+	@$(ENV) python -m pytest tests/unit -m 'not slow'
+
+lint:
+	@bash scripts/lint.sh
 
 experiments: setup
 	@$(ENV) mlkm paper --out results/paper

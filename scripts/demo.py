@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from mlkm_experiments.launch import Graph, ScoreCollector, domain, format_scores, start_association
+from mlkm_ros.processes import Graph, ScoreCollector, domain, format_scores, start_association
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from mlkm_experiments.launch import Graph, ScoreCollector, domain, start_association
+from mlkm_ros.processes import Graph, ScoreCollector, domain, start_association
 
 ROOT = Path(__file__).resolve().parents[1]
 NS_PER_S = 1_000_000_000

@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from mlkm_experiments.launch import Graph, ScoreCollector, domain, format_scores, start_association
+from mlkm_ros.processes import Graph, ScoreCollector, domain, format_scores, start_association
 
 EXIT_DAMAGED = 3  # as bag_player: the readable part of a damaged bag was replayed
 
@@ -50,7 +50,7 @@ def inspect_bag(bag: Path) -> tuple[int, int, dict, list[str]]:
     from rclpy.serialization import deserialize_message
 
     from road_sensor_msgs.msg import EpisodeInfo
-    from rosbag_mcap.storage import BagReader
+    from rosbag_mcap.reader import BagReader
 
     reader = BagReader(bag)
     ended: set[int] = set()
@@ -281,7 +281,7 @@ def _recorded_stream_settings(bag: Path) -> dict[str, str]:
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
 
-    from rosbag_mcap.storage import BagReader
+    from rosbag_mcap.reader import BagReader
 
     for message in BagReader(bag).messages(topics=['/diagnostics']):
         for status in deserialize_message(message.data, DiagnosticArray).status:
@@ -344,7 +344,7 @@ def _player_failed(graph: Graph) -> str | None:
 
 def _recorded_method(bag: Path) -> str | None:
 
-    from rosbag_mcap.storage import BagReader
+    from rosbag_mcap.reader import BagReader
 
     for message in BagReader(bag).messages(topics=['/mlkm/score']):
         if message.topic == '/mlkm/score':

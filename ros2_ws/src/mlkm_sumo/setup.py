@@ -1,6 +1,6 @@
 from pathlib import Path
 
-from setuptools import find_packages, setup
+from setuptools import setup
 
 package_name = 'mlkm_sumo'
 here = Path(__file__).resolve().parent
@@ -15,19 +15,11 @@ def scenario_files() -> list[tuple[str, list[str]]]:
     return out
 
 
+# Everything else is in setup.cfg; the data files are here to find every scenario directory.
 setup(
-    name=package_name,
-    version='0.1.0',
-    packages=find_packages(exclude=['test']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         *scenario_files(),
     ],
-    install_requires=['setuptools'],
-    zip_safe=True,
-    maintainer='mlkm team',
-    maintainer_email='dev@example.com',
-    description='ROS-free Eclipse SUMO traffic source: scenarios, stations, measurement model.',
-    license='Apache-2.0',
 )

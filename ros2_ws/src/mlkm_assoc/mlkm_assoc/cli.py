@@ -1,4 +1,4 @@
-"""``mlkm``: the offline command line (``associate``, ``paper``, ``sumo``, ``bench``).
+"""``mlkm``: the offline command line (``associate``, and the commands other packages add).
 
 ``mlkm associate --input detections.csv --output tracks.csv [--method M] [--segment-size K]
 [--targets N] [--seed S] [--entries X,..] [--exits X,..] [--skip-invalid] [--progress]``
@@ -16,9 +16,12 @@ an open road: the rows are pushed in stamp order through ``mlkm_core.streaming``
 method; key = data row number), the committed labels are written, and the revision rate
 (first-published links changed before their commit) and commit latency are printed.
 
-``mlkm paper`` reproduces the paper's experiments (see ``mlkm_experiments.paper``);
-``mlkm sumo ...`` to ``mlkm_sumo.cli.main`` and ``mlkm bench ...`` to
-``mlkm_experiments.bench.main``.
+Further subcommands come from the ``mlkm.commands`` entry points of the installed packages
+(this package names none of them): ``mlkm sumo`` from mlkm_sumo, ``mlkm paper`` and
+``mlkm bench`` from mlkm_experiments (``mlkm_experiments.commands``). Each entry point
+``name = module:function`` names a function that takes the arguments after ``mlkm <name>``
+and returns the exit status; the first line of its docstring (else of its module's) is its
+line in ``mlkm --help``.
 """
 
 from __future__ import annotations
@@ -49,19 +52,20 @@ from mlkm_core.csvio import (
 from mlkm_core.csvio import read_detections as read_csv
 from mlkm_core.types import Detections, Layout
 
-#: Detections each method associates in well under a minute (measured with the simulator,
-#: 20 sensors, one core; the cost of the clustering methods grows faster than linearly with
-#: the number of targets). Beyond COMFORT_FACTOR times this the CLI suggests a faster method.
+#: Detections each method associates in well under a minute on one core (simulated data, 20
+#: sensors; the timings are in docs/benchmarks.md#offline-cli-sizes, the growth of the cost
+#: with the input in `mlkm bench --only cost`). Beyond COMFORT_FACTOR times this the CLI
+#: suggests a faster method.
 COMFORTABLE = {
-    'assignment': 3_000_000,  # 1e6 detections: 3.8 s
-    'multiframe': 3_000_000,  # 1e6: 10.5 s
-    'kmeans_p': 300_000,  # 3e5: 26 s; 1e6: > 4 min
-    'kmeans_up': 300_000,  # 3e5: 25 s
-    'kmeans_pp': 100_000,  # 1e5: 30 s
-    'kmeans_pp_up': 150_000,  # 1e5: 15 s
-    'mlkm': 150_000,  # 1e5: 12 s; 3e5: 177 s
-    'mlkm_no_ec': 150_000,  # 1e5: 14 s
-    'mlkm_robust': 100_000,  # 1e5: 73 s
+    'assignment': 3_000_000,
+    'multiframe': 3_000_000,
+    'kmeans_p': 300_000,
+    'kmeans_up': 300_000,
+    'kmeans_pp': 100_000,
+    'kmeans_pp_up': 150_000,
+    'mlkm': 150_000,
+    'mlkm_no_ec': 150_000,
+    'mlkm_robust': 100_000,
 }
 COMFORT_FACTOR = 2
 FAST = 'assignment'
@@ -239,14 +243,6 @@ def _print_stream(result) -> None:
         )
 
 
-def cmd_paper(args: argparse.Namespace) -> int:
-    from mlkm_experiments import paper
-
-    return paper.main_args(
-        args.datasets, args.out, args.jobs, args.dnn_datasets, args.segment_size
-    )
-
-
 def _positive(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -359,47 +355,41 @@ def build_parser() -> argparse.ArgumentParser:
             'the batch associators and --stream use them)',
         )
     a.set_defaults(func=cmd_associate)
-    p = sub.add_parser('paper', help="reproduce the paper's experiments")
-    p.add_argument(
-        '--datasets',
-        type=_positive,
-        default=100,
-        help='seeded datasets per configuration (default: 100)',
-    )
-    p.add_argument(
-        '--dnn-datasets',
-        type=_positive,
-        default=None,
-        help='datasets per DNN split (default: min(datasets, 10))',
-    )
-    p.add_argument('--out', default='results/paper', help='output directory')
-    p.add_argument('--jobs', type=_positive, default=2, help='worker processes (default: 2)')
-    p.add_argument(
-        '--segment-size',
-        type=_positive,
-        default=default_k,
-        help=f'MLKM segment size K (default: {default_k})',
-    )
-    p.set_defaults(func=cmd_paper)
-    sub.add_parser(
-        'bench', help='benchmarks (arguments go to mlkm_experiments.bench)', add_help=False
-    )
-    sub.add_parser(
-        'sumo', help='run a SUMO scenario into a detections CSV (mlkm sumo --help)', add_help=False
-    )
+    for name, entry in sorted(plugin_commands().items()):
+        # their own parsers read their arguments (and --help): main() hands argv over
+        sub.add_parser(name, help=_plugin_help(entry), add_help=False)
     return parser
+
+
+#: Entry-point group of the subcommands other packages add to ``mlkm`` (see the docstring).
+COMMANDS_GROUP = 'mlkm.commands'
+BUILTIN = ('associate',)
+
+
+def plugin_commands() -> dict:
+    """``{name: importlib.metadata.EntryPoint}`` of the installed ``mlkm.commands``."""
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=COMMANDS_GROUP) if ep.name not in BUILTIN}
+
+
+def _plugin_help(entry) -> str:
+    try:
+        func = entry.load()
+    except Exception as exc:  # a broken plugin must not break `mlkm --help`
+        return f'(cannot be loaded: {type(exc).__name__}: {exc})'
+    doc = func.__doc__ or getattr(sys.modules.get(func.__module__), '__doc__', None) or ''
+    line = doc.strip().split('\n')[0].strip().rstrip('.')
+    # a module docstring's ``mlkm sumo``: prefix repeats the name
+    return line.split(': ', 1)[1] if line.startswith(f'``mlkm {entry.name}``: ') else line
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] == 'bench':
-        from mlkm_experiments import bench
-
-        return int(bench.main(argv[1:]) or 0)
-    if argv and argv[0] == 'sumo':
-        from mlkm_sumo import cli as sumo
-
-        return int(sumo.main(argv[1:]) or 0)
+    if argv and argv[0] not in BUILTIN:
+        entry = plugin_commands().get(argv[0])
+        if entry is not None:
+            return int(entry.load()(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     return int(args.func(args))
 

@@ -111,7 +111,7 @@ def bare_subscriber(expected: int) -> int:
 
 
 def _bare_run(domain_id: int, log_dir: Path, episodes: int, seed: int) -> dict:
-    from mlkm_experiments.launch import Graph
+    from mlkm_ros.processes import Graph
 
     expected = TARGETS * SENSORS * episodes
     with Graph(domain_id, log_dir / 'bare', echo=False) as graph:
@@ -134,8 +134,8 @@ def _bare_run(domain_id: int, log_dir: Path, episodes: int, seed: int) -> dict:
 
 
 def _association_run(domain_id: int, log_dir: Path, episodes: int, seed: int, method: str) -> dict:
-    from mlkm_experiments.launch import Graph, ScoreCollector
     from mlkm_ros.conversions import diagnostics_values
+    from mlkm_ros.processes import Graph, ScoreCollector
 
     collector = ScoreCollector(domain_id, diagnostics=True)
     try:
@@ -186,7 +186,7 @@ def run(
 ) -> dict:
     """Run both measurements ``repeats`` times, alternating (the machine is shared, so
     medians over interleaved runs); write ``live.json`` and ``live.md`` in ``out_dir``."""
-    from mlkm_experiments.launch import domain
+    from mlkm_ros.processes import domain
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

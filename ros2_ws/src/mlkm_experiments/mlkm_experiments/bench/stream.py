@@ -142,8 +142,8 @@ def run_graph(
     was flushed and the working set is empty; without ``drain``: until nothing arrived for
     2 s). Returns the node's last /diagnostics values,
     the diagnostics samples, the RSS samples and what the source says it published."""
-    from mlkm_experiments.launch import Graph, ScoreCollector
     from mlkm_ros.conversions import diagnostics_values
+    from mlkm_ros.processes import Graph, ScoreCollector
 
     collector = ScoreCollector(domain_id, diagnostics=True)
     state: dict[str, str] = {}
@@ -338,7 +338,7 @@ def run_memory(domain_id: int, log_dir: Path, log: Log, quick: bool) -> dict:
 
 
 def run_throughput(domain_id: int, log_dir: Path) -> dict:
-    from mlkm_experiments.launch import Graph
+    from mlkm_ros.processes import Graph
 
     bares, assocs = [], []
     for i in range(REPEATS):
@@ -375,7 +375,7 @@ def run_throughput(domain_id: int, log_dir: Path) -> dict:
 
 
 def run_stream(log: Log, quick: bool = False, cache_dir: Path | None = None) -> dict:
-    from mlkm_experiments.launch import domain
+    from mlkm_ros.processes import domain
 
     log_dir = Path(tempfile.mkdtemp(prefix='mlkm_bench_stream_'))
     out: dict = {'logs': str(log_dir), 'load_average_1min_start': os.getloadavg()[0]}

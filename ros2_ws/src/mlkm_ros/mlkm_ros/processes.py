@@ -3,6 +3,10 @@
 They start the installed executables as separate processes, exactly as a user would with
 ``ros2 run`` in separate terminals, on loopback DDS and a ROS domain of their own, and stop
 every one of them (SIGINT, then SIGTERM, then SIGKILL) whatever happens.
+
+Part of the product (the demo, the replay and the tests use it; the benchmarks in
+mlkm_experiments import it from here). Importing it loads no rclpy: only
+:class:`ScoreCollector` and :func:`executable` import ROS modules, when called.
 """
 
 from __future__ import annotations
