@@ -16,7 +16,7 @@ Fixtures
                         ``MLKM_DDS_LOOPBACK=0``), unbuffered Python output; give it to any
                         subprocess you start.
 ``ros_process``      -> factory ``ros_process(package, executable, *args, env=None,
-                        cwd=None) -> Proc`` (mlkm_experiments.launch.Proc): starts
+                        cwd=None) -> Proc`` (mlkm_ros.processes.Proc): starts
                         ``ros2_ws/install/<package>/lib/<package>/<executable>`` in its own
                         process group with ``ros_env`` (``env`` entries are added to it), output
                         to a log file (``.output()``, ``.log_path``). Every process is stopped at
@@ -87,7 +87,7 @@ def _end_children_with_the_run() -> None:
     itself (PR_SET_PDEATHSIG); SIGTERM or SIGHUP (a time limit, a closed terminal) and the
     exit also kill every process group still running and every direct child, whose own Procs
     then die with them. Ctrl-C tears the fixtures down as usual, then the exit does this."""
-    from mlkm_experiments.launch import kill_all  # after the env.sh re-exec above
+    from mlkm_ros.processes import kill_all  # after the env.sh re-exec above
 
     runner = os.getpid()
 
@@ -132,7 +132,7 @@ def repo_root() -> Path:
 @pytest.fixture
 def ros_domain_id() -> Iterator[int]:
     """A ROS_DOMAIN_ID that no other test, demo or session on this machine holds right now."""
-    from mlkm_experiments.launch import reserve_domain  # after the env.sh re-exec above
+    from mlkm_ros.processes import reserve_domain  # after the env.sh re-exec above
 
     with reserve_domain() as domain_id:
         yield domain_id
@@ -168,7 +168,7 @@ def executable_path(package: str, executable: str) -> Path:
 
 @pytest.fixture
 def ros_process(ros_env: dict[str, str], tmp_path: Path) -> Iterator[Callable[..., object]]:
-    from mlkm_experiments.launch import Proc  # after the env.sh re-exec above
+    from mlkm_ros.processes import Proc  # after the env.sh re-exec above
 
     started: list[Proc] = []
 

@@ -22,7 +22,7 @@ from rosbags.rosbag2 import Reader as Rosbag2Reader
 from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import String
 
-from rosbag_mcap.storage import BagReader
+from rosbag_mcap.reader import BagReader
 
 KEEP_ALL = QoSProfile(
     history=HistoryPolicy.KEEP_ALL, depth=0, reliability=ReliabilityPolicy.RELIABLE

@@ -21,7 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from road_sensor_msgs.msg import GroundTruth
-from rosbag_mcap.storage import BagReader
+from rosbag_mcap.reader import BagReader
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / 'bags' / 'sample'

@@ -10,7 +10,7 @@ from rclpy.node import Node
 
 from mlkm_ros import qos
 from road_sensor_msgs.msg import GroundTruth
-from rosbag_mcap.storage import BagReader
+from rosbag_mcap.reader import BagReader
 
 pytestmark = pytest.mark.ros
 

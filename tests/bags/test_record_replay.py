@@ -23,7 +23,8 @@ from std_msgs.msg import String
 
 from mlkm_ros.publishing import ReliablePublisher
 from road_sensor_msgs.msg import Detection
-from rosbag_mcap.storage import BagReader, BagWriter
+from rosbag_mcap.reader import BagReader
+from rosbag_mcap.storage import BagWriter
 
 pytestmark = pytest.mark.ros
 

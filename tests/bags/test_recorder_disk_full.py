@@ -24,7 +24,8 @@ from std_msgs.msg import String
 
 from rosbag_mcap import storage
 from rosbag_mcap.definitions import DefinitionCache
-from rosbag_mcap.storage import RESERVE_FILE, BagReader, BagWriteError, BagWriter
+from rosbag_mcap.reader import BagReader
+from rosbag_mcap.storage import RESERVE_FILE, BagWriteError, BagWriter
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 KEEP_ALL = QoSProfile(

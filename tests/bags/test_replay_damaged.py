@@ -17,7 +17,8 @@ from rclpy.serialization import deserialize_message
 
 from road_sensor_msgs.msg import Detection, EpisodeInfo, GroundTruth
 from rosbag_mcap.definitions import DefinitionCache
-from rosbag_mcap.storage import BagReader, BagWriter
+from rosbag_mcap.reader import BagReader
+from rosbag_mcap.storage import BagWriter
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from mlkm_core.associators.kalman import KalmanModel
 from mlkm_core.associators.likelihood import sequence_nll
-from mlkm_core.associators.motion import GapDelays, MotionParams, PairwiseModel, make_model
+from mlkm_core.model.kalman import KalmanModel
+from mlkm_core.model.link import make_model
+from mlkm_core.model.motion import GapDelays, MotionParams, PairwiseModel
 from mlkm_core.types import Detections, Layout
 
 P = MotionParams(sigma=3.0, length=250.0, stamp_noise=0.15, velocity_noise=0.4)

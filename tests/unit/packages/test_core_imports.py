@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-CORE_SRC = Path(__file__).resolve().parents[1] / 'ros2_ws' / 'src' / 'mlkm_core' / 'mlkm_core'
+CORE_SRC = Path(__file__).resolve().parents[3] / 'ros2_ws' / 'src' / 'mlkm_core' / 'mlkm_core'
 
 # Runs in a fresh interpreter: imports every module of mlkm_core, reports what got loaded.
 PROBE = r"""

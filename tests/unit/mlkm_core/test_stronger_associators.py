@@ -12,8 +12,8 @@ import pytest
 from mlkm_core.associators import available_methods, make_associator
 from mlkm_core.associators.likelihood import sequence_nll
 from mlkm_core.associators.linking import gate_pairs, match_sparse, relabel
-from mlkm_core.associators.motion import MotionParams
 from mlkm_core.metrics import accuracy
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout
 

@@ -16,9 +16,9 @@ from mlkm_core.associators.base import AssociatorConfig, make_associator
 from mlkm_core.metrics import accuracy
 from mlkm_core.simulator import SimConfig, simulate_episodes
 from mlkm_core.types import Detections
-from mlkm_experiments.launch import wait_idle
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
+from mlkm_ros.processes import wait_idle
 from road_sensor_msgs.msg import AssociationScore, TrackArray
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -29,7 +29,7 @@ MESSAGES = (
     'AssociationScore',
 )
 U32_MAX = 2**32 - 1
-MSG_DIR = Path(__file__).resolve().parents[1] / 'ros2_ws' / 'src' / 'road_sensor_msgs' / 'msg'
+MSG_DIR = Path(__file__).resolve().parents[2] / 'ros2_ws' / 'src' / 'road_sensor_msgs' / 'msg'
 UNIT = re.compile(r'\[[^\]]+\]')
 
 

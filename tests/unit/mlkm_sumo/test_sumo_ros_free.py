@@ -3,7 +3,7 @@
 import ast
 from pathlib import Path
 
-SUMO_SRC = Path(__file__).resolve().parents[2] / 'ros2_ws' / 'src' / 'mlkm_sumo' / 'mlkm_sumo'
+SUMO_SRC = Path(__file__).resolve().parents[3] / 'ros2_ws' / 'src' / 'mlkm_sumo' / 'mlkm_sumo'
 
 
 def imported_modules(path: Path) -> list[str]:

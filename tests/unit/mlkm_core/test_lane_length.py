@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from mlkm_core.associators import AssociatorConfig, available_methods, calibration, make_associator
-from mlkm_core.associators.attributes import AttributeParams, estimate_attributes
 from mlkm_core.associators.base import DegradedResultWarning
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.linking import merge_double_reports
-from mlkm_core.associators.motion import MotionParams
 from mlkm_core.metrics import accuracy
+from mlkm_core.model import lane, length
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout
 
@@ -197,13 +197,14 @@ def test_a_slow_vehicles_twin_reports_may_be_far_apart():
 def test_fit_recovers_length_noise_and_lane_change_probability(noise, change):
     layout, cols = background(150, 3, change_prob=change, length_noise=noise)
     d = detections(cols)
-    fit = estimate_attributes(layout, d, d.target, AttributeParams())
+    fit = length.fit(layout, d, d.target)
     assert fit.length_noise == pytest.approx(noise, rel=0.15)
+    assert fit.length_outlier == pytest.approx(1e-3)
+    fit = lane.fit(layout, d, d.target)
     # a change to a clipped lane (0 -> -1, 2 -> 3) is no change: 1/3 of the draws at the edges
     effective = change * (1 - 2 / 3 * 0.5)
     assert fit.change_rate * SPACING == pytest.approx(effective, rel=0.3)
     assert np.median(fit.change) == pytest.approx(effective, rel=0.4)
-    assert fit.length_outlier == pytest.approx(1e-3)
 
 
 def jumpy_traffic(seed: int, jump_prob: float, jump_sigma: float):

@@ -5,10 +5,11 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 import mlkm_core.streaming.solve as solve_module
-from mlkm_core.associators.motion import GapDelays, MotionParams, PairwiseModel
 from mlkm_core.metrics import accuracy
+from mlkm_core.model.motion import GapDelays, MotionParams, PairwiseModel
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.streaming import StreamConfig, StreamTracker
 from mlkm_core.streaming.motion import LinkCost, overdue_at
@@ -113,6 +114,7 @@ def _calibrations(monkeypatch, config: StreamConfig):
     return calls[:-1], solves, tracker, accuracy(labels, d.target).accuracy  # -1: the flush
 
 
+@pytest.mark.slow
 def test_the_stream_calibrates_once_every_calibration_every_windows(monkeypatch):
     """The method's model is estimated at every window until one was estimated on a full
     context (``context_size`` rows), then once every ``calibration_every`` windows; the
@@ -128,6 +130,7 @@ def test_the_stream_calibrates_once_every_calibration_every_windows(monkeypatch)
     assert acc >= 0.99
 
 
+@pytest.mark.slow
 def test_a_model_from_fewer_rows_than_a_full_context_is_not_carried(monkeypatch):
     """A road filling up: no model was estimated on ``context_size`` rows, so every window
     calibrates (a model from the first sparse windows carried over for a minute of a short
@@ -147,6 +150,7 @@ def partition(labels: dict) -> list[list[int]]:
     return sorted(sorted(g) for g in tracks.values())
 
 
+@pytest.mark.slow
 def test_deferred_solves_commit_the_same_later():
     """While ``deferring``, due windows wait (up to MAX_DEFERRED boundaries); once it is off
     they are solved in order and the committed association (which detections share a track,

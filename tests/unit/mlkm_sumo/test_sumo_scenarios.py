@@ -174,6 +174,7 @@ def test_episodes_release_batches_that_all_leave(cache):
     assert set(first.vehicle_ids).isdisjoint(second.vehicle_ids)
 
 
+@pytest.mark.slow
 def test_congested_queues_upstream_of_the_road_works(cache):
     kw = {'n_vehicles': 300, 'stations_at': [3300, 4500], 'seed': 1, 'cache_dir': cache}
     jam, free = generate('congested', **kw), generate('highway', **kw)

@@ -22,10 +22,10 @@ from rosbag_mcap.definitions import (
     msg_dependencies,
     read_msg_file,
 )
+from rosbag_mcap.reader import BagReader
 from rosbag_mcap.storage import (
     INFINITE_NS,
     BagError,
-    BagReader,
     BagWriter,
     QosSpec,
     parse_qos,
@@ -33,7 +33,7 @@ from rosbag_mcap.storage import (
     replay_qos,
 )
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 ROAD_MSGS = REPO / 'ros2_ws' / 'src' / 'road_sensor_msgs' / 'msg'
 
 LATCHED = QosSpec(

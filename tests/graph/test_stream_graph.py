@@ -21,7 +21,7 @@ from rclpy.serialization import deserialize_message
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
 from road_sensor_msgs.msg import Detection, SensorLayout, TrackArray
-from rosbag_mcap.storage import BagReader
+from rosbag_mcap.reader import BagReader
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

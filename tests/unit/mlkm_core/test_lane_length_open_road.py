@@ -5,7 +5,7 @@ import pytest
 
 from mlkm_core.associators import AssociatorConfig
 from mlkm_core.associators.likelihood import sequence_nll
-from mlkm_core.associators.motion import MotionParams
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
 POSITIONS = 200.0 * np.arange(1, 11)

@@ -246,6 +246,7 @@ def test_status_goes_tentative_confirmed_final():
     assert groups(run.labels) == [list(range(10))]
 
 
+@pytest.mark.slow
 def test_working_set_stays_bounded_on_a_long_stream():
     layout = Layout(1100.0, np.arange(1, 6) * 200.0)
     rng = np.random.default_rng(0)
@@ -269,6 +270,7 @@ def test_working_set_stays_bounded_on_a_long_stream():
     assert stats['committed'] == len(rows)
 
 
+@pytest.mark.slow
 def test_multiframe_stream_is_close_to_batch_on_clutter_data():
     # measured at the defaults: 99.75 % stream and batch on these seeds (99.72 vs 99.63 % on
     # seeds 0-5)
@@ -368,6 +370,7 @@ def false_alarms(labels):
     return sorted(k for k, t in labels.items() if t < 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('method', ['multiframe', 'assignment'])
 def test_solves_beside_the_stream_commit_the_same_as_inline_solves(method):
     ds, rows = _sim(n_targets=20, seed=4, **CLUTTER)

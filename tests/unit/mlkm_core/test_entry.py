@@ -8,7 +8,7 @@ import pytest
 
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.likelihood import sequence_nll
-from mlkm_core.associators.motion import MotionParams
+from mlkm_core.model.motion import MotionParams
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout
 

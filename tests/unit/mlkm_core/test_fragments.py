@@ -15,8 +15,8 @@ from mlkm_core.associators.linking import (
     merge_double_reports,
     relabel,
 )
-from mlkm_core.associators.motion import MotionParams, PairwiseModel
 from mlkm_core.metrics import score
+from mlkm_core.model.motion import MotionParams, PairwiseModel
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout
 

@@ -9,10 +9,9 @@ import pytest
 from test_lane_length import N_SENSORS, SPACING, background, detections
 
 from mlkm_core.associators import calibration, make_associator
-from mlkm_core.associators.attributes import Attributes, estimate_attributes
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.delays import estimate_gap_spread
-from mlkm_core.associators.laneorder import LaneOrder, restore_order
+from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.linking import link, relabel
 from mlkm_core.associators.merges import (
     estimate_lane_delays,
@@ -20,8 +19,12 @@ from mlkm_core.associators.merges import (
     exchange_merge_order,
     relink_lane_delays,
 )
-from mlkm_core.associators.motion import GapDelays, MotionParams
 from mlkm_core.metrics import accuracy
+from mlkm_core.model import lane as lane_cue
+from mlkm_core.model import length as length_cue
+from mlkm_core.model.catalogue import bind_cues
+from mlkm_core.model.lane_order import LaneOrder
+from mlkm_core.model.motion import GapDelays, MotionParams
 from mlkm_core.simulator import SimConfig, simulate
 from mlkm_core.types import Detections, Layout
 
@@ -139,8 +142,14 @@ def queue_params(layout: Layout, d) -> MotionParams:
     delay[5] = 20.0
     spread = np.zeros(N_SENSORS - 1)
     spread[5] = 2.5**2
-    attributes = Attributes(
-        layout, d, estimate_attributes(layout, d, d.target), LaneOrder(layout, d, d.target)
+    cues = bind_cues(
+        layout,
+        d,
+        {
+            'lane': lane_cue.fit(layout, d, d.target),
+            'length': length_cue.fit(layout, d, d.target),
+            'lane_order': LaneOrder(layout, d, d.target),
+        },
     )
     return MotionParams(
         sigma=0.3,
@@ -148,7 +157,7 @@ def queue_params(layout: Layout, d) -> MotionParams:
         stamp_noise=0.01,
         velocity_noise=0.1,
         delay=GapDelays.per_gap(layout.positions, delay, spread),
-        attributes=attributes,
+        cues=cues,
     )
 
 
@@ -156,7 +165,7 @@ def test_neighbours_crossed_in_a_queue_get_their_order_back():
     layout, cols = queue(10)
     d = detections(cols, lane=True, length=True)
     p = queue_params(layout, d)
-    assert {(5, 0), (5, 1)} <= set(p.attributes.order.table)
+    assert {(5, 0), (5, 1)} <= set(p.cues.get('lane_order').order.table)
     # cars 10 and 11 (lane 0, one behind the other) with their continuations after the queue
     # gap exchanged: the links cross
     after = d.sensor_index >= 6
@@ -182,7 +191,7 @@ def test_a_crossing_that_the_lengths_confirm_is_kept():
     cols['stamp'], cols['length'] = stamp.tolist(), length.tolist()
     d = detections(cols, lane=True, length=True)
     p = queue_params(layout, d)
-    assert (5, 0) in p.attributes.order.table
+    assert (5, 0) in p.cues.get('lane_order').order.table
     np.testing.assert_array_equal(restore_order(layout, d, d.target, p), d.target)
     # the same crossing between two cars of the same length is undone
     length[target == 11] = 4.5
