@@ -54,17 +54,14 @@ numbers:
   fluctuation (< 3 m/s) puts P above MLKM w/o EC; long correlation (>= 1 km) helps every
   method.
 
-The same default simulator also has to leave the stronger associators room to be near-perfect
-(>= 99.9 % in paper mode and >= 99.3 % in clutter mode at 50/20). A second sweep (fluctuation
-2 .. 5 m/s x correlation 50 m .. 1 km, 20-60 datasets per point, the paper's relations and
-``multiframe`` together) showed that 5 m/s made the traffic itself too ambiguous for that
-(``multiframe`` 99.79 % / 99.13 %), while 4 m/s keeps every one of the paper's relations,
-brings the error-correction gain closest to the paper's (+7.2 against +7.35 points) and gives
-``multiframe`` 99.94 % / 99.35 %. Below ~3.5 m/s K-means++(P) overtakes MLKM w/o EC.
-
-Measured by ``mlkm paper`` (100 datasets, ``results/paper/results.md``), mean accuracy at
-50 targets / 20 sensors: K-means++(P) 81.0 %, MLKM w/o EC 83.0 %, MLKM w/ EC 90.8 % (paper:
-84.3 % and 91.65 %).
+The same default simulator also has to leave the stronger associators room to be
+near-perfect (the benchmark's targets in paper and clutter mode at 50/20, ``mlkm bench``). A
+second sweep (fluctuation 2 .. 5 m/s x correlation 50 m .. 1 km, the paper's relations and
+``multiframe`` together) showed that a stronger fluctuation makes the traffic itself too
+ambiguous for those targets, while 4 m/s keeps every one of the paper's relations and brings
+the error-correction gain closest to the paper's; a much weaker one lets K-means++(P) overtake
+MLKM w/o EC. The figures of both sweeps are in docs/benchmarks.md; ``mlkm paper``
+(``results/paper/results.md``) checks the paper's relations on the defaults.
 
 Clutter knobs (all off by default, so the paper's setting is unchanged)
 ----------------------------------------------------------------------

@@ -20,17 +20,13 @@ class StreamConfig:
     method: str = 'multiframe'  # any registered associator (available_methods())
     # [s] a link may be revised until the newest stamp is `lag` past the detection's stamp,
     # then it is committed for good. It must exceed the travel time between consecutive
-    # stations (else a vehicle's first detection is committed alone, as a false alarm).
-    # Measured with multiframe at the other defaults (mean accuracy, stream vs batch): paper
-    # simulator in clutter, 50 targets / 20 sensors, seeds 0-5: lag 10 s 99.74 %, 15 s
-    # 99.72 %, 30 s 99.75 % vs 99.63 %; SUMO highway 200 vehicles / 20 stations (up to 627 m
-    # apart, 320 m to the second station), seed 1: 10 s 98.75 %, 15 s 99.38 %, 30 s 99.40 %
-    # vs 99.45 %. 15 s is the shortest lag within 0.5 points of batch on both; a detection
-    # is then committed 16-26 s of stamp time after its stamp (median 21 s on the highway).
+    # stations (else a vehicle's first detection is committed alone, as a false alarm). A
+    # longer lag leaves more evidence to each revision and delays every commit by as much; the
+    # default is the shortest lag whose committed accuracy stays within the benchmark's
+    # tolerance of batch (`mlkm bench --only stream`; figures in docs/benchmarks.md).
     lag: float = 15.0
-    # [s] the window is re-solved at every multiple of this; 10 s beat 5 s on the paper
-    # simulator (99.44 vs 99.21 % at lag 15 s without context): longer windows calibrate
-    # the methods' model better, and it halves the solves
+    # [s] the window is re-solved at every multiple of this; longer windows calibrate the
+    # methods' model on more tracks, and fewer solves cost less CPU (docs/benchmarks.md)
     solve_interval: float = 10.0
     # [s] pushes may arrive this much out of stamp order without changing any committed
     # label: a window is solved once the newest stamp is this far past its boundary
@@ -39,20 +35,21 @@ class StreamConfig:
     anchor_depth: int = 3  # committed detections per open track given to each window solve
     # detections of the most recently ended tracks (of 3 or more) added to the calibrating
     # window solves of assignment, multiframe and mlkm_robust, which calibrate their motion
-    # model on their input: on sparse traffic a window alone holds too few tracks for it
-    # (paper simulator in clutter, seeds 0-1: multiframe 99.58 -> 99.68 %, assignment 95.21
-    # -> 96.37 %, equal to batch); 0 = none
+    # model on their input: on sparse traffic a window alone holds too few tracks for it, and
+    # the context brings the stream's accuracy to that of batch (docs/benchmarks.md); 0 = none
     context_size: int = 300
     calibration_size: int = 1000  # committed detections kept for the K-means methods' model
     # recalibrate the motion model every this many solves; in between, the windows of the
-    # calibrating methods get the last model carried over (a calibration was two thirds of a
-    # multiframe window solve; stream vs batch at lag 15 s: clutter 99.72 vs 99.75 %, SUMO
-    # highway 99.12 vs 99.12 %); a model estimated on fewer than context_size rows is not
-    # carried (the first windows of a road filling up calibrate each time)
+    # calibrating methods get the last model carried over, since a calibration is a large
+    # share of a multiframe window solve and the model changes slowly with the traffic (its
+    # effect on accuracy: docs/benchmarks.md); a model estimated on fewer than context_size
+    # rows is not carried (the first windows of a road filling up calibrate each time)
     calibration_every: int = 6
-    segment_size: int = 5  # K of the MLKM methods (sensors per segment)
-    seed: int = 0  # random_state of the K-means methods
-    search_budget: int = 500_000  # multiframe: candidates scored per window solve and start
+    # the associators' settings, with their defaults (``AssociatorConfig``)
+    segment_size: int = AssociatorConfig.segment_size  # K of the MLKM methods
+    seed: int = AssociatorConfig.seed  # random_state of the K-means methods
+    # multiframe: candidates scored per window solve and start
+    search_budget: int = AssociatorConfig.search_budget
     # [-] once more detections than this wait for their commit (window solves beside the
     # stream that cannot keep up), the due boundaries are committed on the immediate links
     # without a solve and the solve in flight is dropped (``StreamTracker.overloaded``);
@@ -60,11 +57,9 @@ class StreamConfig:
     max_uncommitted: int = 0
 
     def __post_init__(self) -> None:
-        from mlkm_core.associators import available_methods
+        from mlkm_core.associators.base import METHODS
 
-        methods = available_methods()
-        if self.method not in methods:
-            raise ValueError(f'unknown method {self.method!r}; choose one of {", ".join(methods)}')
+        METHODS.get(self.method)  # a ValueError naming the choices if unknown
         checks = (
             (math.isfinite(self.lag) and self.lag > 0, 'lag must be a finite number > 0'),
             (
