@@ -11,7 +11,13 @@ import pytest
 from mlkm_core.associators import make_associator
 from mlkm_core.associators.base import DegradedResultWarning
 from mlkm_core.metrics import accuracy
-from mlkm_core.model.catalogue import available_cues, bind_cues, register_cue, unregister_cue
+from mlkm_core.model.catalogue import (
+    available_cues,
+    bind_cues,
+    generic_cues,
+    register_cue,
+    unregister_cue,
+)
 from mlkm_core.model.cues import Cue, CueKind, CueTracks
 from mlkm_core.model.link import LinkModel
 from mlkm_core.model.motion import MotionParams, PairwiseModel
@@ -64,6 +70,7 @@ def colour_kind(colours: dict) -> CueKind:
     params = ColourParams(colours)
     return CueKind(
         'colour',
+        needs='reported colour',
         bind=lambda layout, d, p: ColourCue(d, p),
         fit=lambda layout, d, labels: params,
         generic=params,
@@ -184,3 +191,18 @@ def test_a_cue_name_is_registered_once(colour_cue):
     with pytest.raises(ValueError, match='registered twice'):
         register_cue(colour_kind({}))
     assert available_cues()[:3] == ['lane_order', 'length', 'lane']
+
+
+def test_a_cue_left_off_says_why():
+    layout, d, _ = swapping_traffic()
+    with_length = Detections(
+        d.sensor_index, d.stamp, d.velocity, d.target, None, np.full(len(d), 4.5)
+    )
+    cues = generic_cues(layout, with_length)
+    assert [c.name for c in cues.cues] == ['length']
+    assert cues.off == {
+        'lane': 'the detections hold no known lane',
+        'lane_order': 'not fitted: no queue in a lane (travel times that cannot tell '
+        'neighbours apart) found',
+    }
+    assert generic_cues(layout, d) is None  # neither lane nor length: no cue at all

@@ -38,14 +38,17 @@ def available_cues() -> list[str]:
 def bind_cues(layout: Layout, d: Detections, params: dict[str, Any]) -> CueSet:
     """Every cue with parameters in ``params`` bound to ``d`` (those the data hold nothing for
     are left out; their parameters are kept)."""
-    bound = []
+    bound, off = [], {}
     for k in CUES.values():
-        if params.get(k.name) is not None:
-            cue = k.bind(layout, d, params[k.name])
-            if cue is not None:
-                bound.append(cue)
+        cue = None if params.get(k.name) is None else k.bind(layout, d, params[k.name])
+        if cue is not None:
+            bound.append(cue)
+        elif params.get(k.name) is None:
+            off[k.name] = f'not fitted: no {k.needs} found'
+        else:
+            off[k.name] = f'the detections hold no {k.needs}'
     tied = frozenset(k.name for k in CUES.values() if not k.reusable)
-    return CueSet(tuple(bound), dict(params), tied)
+    return CueSet(tuple(bound), dict(params), tied, off)
 
 
 def generic_cues(layout: Layout, d: Detections) -> CueSet | None:

@@ -4,7 +4,8 @@ A cue is what a detection tells about its vehicle besides its time and speed: th
 vehicle's length, the order of passage within a lane in a queue, ... Each cue is one module
 (``lane``, ``length``, ``lane_order``) that defines
 
-* a ``CueKind``, registered once in ``catalogue``: its name; its generic parameters (used
+* a ``CueKind``, registered once in ``catalogue``: its name; what it needs from the data
+  (``CueSet.off`` says so for a cue left off); its generic parameters (used
   before anything is fitted; None when it has none); ``fit``, its parameters from the tracks
   of a pass over the detections being associated (None switches it off); ``rounds``, how
   many link passes refine the fit (a cue learnt from the very tracks it changes); and
@@ -105,6 +106,8 @@ class CueKind:
     """How one cue is fitted and bound; registered once (``catalogue.register_cue``)."""
 
     name: str
+    #: what the cue needs from the detections (says why it is off when they lack it)
+    needs: str
     #: (layout, detections, parameters) -> the bound cue, None when the data hold nothing for it
     bind: Callable[[Layout, Detections, Any], Cue | None]
     #: (layout, detections, labels of a pass) -> parameters; None switches the cue off
@@ -155,11 +158,16 @@ class CueSet:
     """The cues bound to one set of detections, with the parameters they were bound with."""
 
     def __init__(
-        self, cues: tuple[Cue, ...], params: dict[str, Any], tied: frozenset[str] = frozenset()
+        self,
+        cues: tuple[Cue, ...],
+        params: dict[str, Any],
+        tied: frozenset[str] = frozenset(),
+        off: dict[str, str] | None = None,
     ) -> None:
         self.cues = cues
         self.params = params  # parameters by cue name (also of cues left unbound)
         self.tied = tied  # names of the parameters tied to these detections
+        self.off = off or {}  # why each registered cue that is not bound is off
 
     @property
     def active(self) -> bool:

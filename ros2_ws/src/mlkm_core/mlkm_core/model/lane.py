@@ -134,4 +134,4 @@ def fit(
     return LaneParams(rate, change)
 
 
-KIND = CueKind('lane', bind=bind, fit=fit, generic=LaneParams())
+KIND = CueKind('lane', needs='known lane', bind=bind, fit=fit, generic=LaneParams())

@@ -169,4 +169,11 @@ def bind(layout: Layout, d: Detections, order: LaneOrder | None) -> LaneOrderCue
 #: link passes that refine the in-lane order from their own tracks
 ROUNDS = 3
 
-KIND = CueKind('lane_order', bind=bind, fit=fit, rounds=ROUNDS, reusable=False)
+KIND = CueKind(
+    'lane_order',
+    needs='queue in a lane (travel times that cannot tell neighbours apart)',
+    bind=bind,
+    fit=fit,
+    rounds=ROUNDS,
+    reusable=False,
+)

@@ -130,4 +130,4 @@ def fit(
     return LengthParams(noise, outlier)
 
 
-KIND = CueKind('length', bind=bind, fit=fit, generic=LengthParams())
+KIND = CueKind('length', needs='known vehicle length', bind=bind, fit=fit, generic=LengthParams())
