@@ -21,7 +21,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from mlkm_assoc.stream_mode import StreamIngest
+from mlkm_assoc.stream_ingest import StreamIngest
 from mlkm_core.bounds import Bounds
 from mlkm_core.types import Layout
 from mlkm_ros import conversions as conv

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mlkm_assoc.assembly import Assembler, AssociationConfig
-from mlkm_assoc.stream_mode import StreamIngest
+from mlkm_assoc.stream_ingest import StreamIngest
 from mlkm_core.bounds import Bounds
 from mlkm_core.csvio import read_detections
 from mlkm_core.types import Layout

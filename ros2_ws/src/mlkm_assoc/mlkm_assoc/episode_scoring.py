@@ -36,8 +36,6 @@ from mlkm_core.types import Detections
 from mlkm_ros import conversions as conv
 from road_sensor_msgs.msg import EpisodeInfo, GroundTruth, TrackArray
 
-__all__ = ['EpisodeScoring', 'ScorerConfig', 'valid_stamp_ns']
-
 
 class EpisodeScoring:
     """Open and scored episodes of the current run, the running mean and the counts.

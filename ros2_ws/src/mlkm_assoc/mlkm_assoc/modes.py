@@ -21,7 +21,7 @@ from typing import Any
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
-from mlkm_assoc.stream_mode import REJECT_REASONS as STREAM_REASONS
+from mlkm_assoc.stream_ingest import REJECT_REASONS as STREAM_REASONS
 from mlkm_assoc.stream_mode import StreamMode, StreamSettings
 from mlkm_assoc.stream_worker import discard_prestarted
 from mlkm_ros import conversions as conv

@@ -42,7 +42,8 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 
-from mlkm_assoc.episode_scoring import EpisodeScoring, ScorerConfig, valid_stamp_ns
+from mlkm_assoc.episode_inputs import ScorerConfig, valid_stamp_ns
+from mlkm_assoc.episode_scoring import EpisodeScoring
 from mlkm_assoc.stream_scoring import STREAM_SPECS, StreamScoring
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle, qos

@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from mlkm_assoc.stream_ingest import REJECT_REASONS, StreamIngest
+from mlkm_assoc.stream_ingest import StreamIngest
 from mlkm_assoc.stream_state import Answer, TrackerSettings
 from mlkm_assoc.stream_worker import TrackerProcess
 from mlkm_assoc.validation import NS_PER_S
@@ -56,9 +56,6 @@ class StreamSettings:
     def tracker(self) -> TrackerSettings:
         """The settings the tracker process builds its trackers from."""
         return TrackerSettings(**{f.name: getattr(self, f.name) for f in fields(TrackerSettings)})
-
-
-__all__ = ['REJECT_REASONS', 'StreamIngest', 'StreamMode', 'StreamSettings']
 
 
 class StreamMode:
