@@ -27,9 +27,6 @@ class Registry[T]:
             )
         return self.items[name]
 
-    def __contains__(self, name: str) -> bool:
-        return name in self.items
-
     def names(self) -> list[str]:
         return list(self.items)
 
