@@ -7,23 +7,20 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from mlkm_core.csvout import write_detections
 
 from .api import SumoDataset, generate
 from .measurement import KIND_NAMES, MeasurementConfig
 from .network import SumoError
 from .scenarios import SCENARIOS
 
-#: The columns of ``mlkm associate``'s input, then the loop detectors' extras.
-COLUMNS = ('sensor_id', 'position_m', 'stamp_s', 'velocity_mps', 'target_id', 'lane', 'length_m')
 DEFAULT_DURATION = 600.0
 
 
@@ -94,31 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def write_csv(path: Path, ds: SumoDataset) -> None:
-    """Rows sorted by stamp, written atomically (a temporary file renamed into place)."""
-    lay, d = ds.layout, ds.detections
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
-    try:
-        with os.fdopen(fd, 'w', newline='') as f:
-            w = csv.writer(f)
-            w.writerow(COLUMNS)
-            for k in np.argsort(d.stamp, kind='stable'):
-                s = int(d.sensor_index[k])
-                w.writerow(
-                    [
-                        int(lay.sensor_ids[s]),
-                        f'{lay.positions[s]:.2f}',
-                        f'{d.stamp[k]:.4f}',
-                        f'{d.velocity[k]:.4f}',
-                        int(d.target[k]),
-                        int(d.lane[k]),
-                        f'{d.length[k]:.3f}',
-                    ]
-                )
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Rows sorted by stamp, written atomically (``mlkm_core.csvout``)."""
+    write_detections(path, ds.layout, ds.detections, decimals=(2, 4, 4, 3))
 
 
 def road_json(ds: SumoDataset) -> dict:
