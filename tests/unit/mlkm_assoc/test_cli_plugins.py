@@ -1,13 +1,15 @@
 """``mlkm`` finds its further subcommands through the ``mlkm.commands`` entry points.
 
 mlkm_assoc names no benchmark module: ``mlkm paper`` and ``mlkm bench`` come from
-mlkm_experiments' entry points, ``mlkm sumo`` from mlkm_sumo's.
+mlkm_experiments' entry points, ``mlkm sumo`` from mlkm_sumo's, ``mlkm loops`` from
+mlkm_assoc's own.
 """
 
 from __future__ import annotations
 
 import importlib.metadata
 import json
+import re
 import subprocess
 import sys
 
@@ -30,12 +32,14 @@ def echo(argv: list[str]) -> int:
 
 def test_installed_commands_are_listed_and_dispatched(capsys):
     names = set(cli.plugin_commands())
-    assert {'paper', 'bench', 'sumo'} <= names, f'installed mlkm.commands: {names}; make setup?'
+    assert {'paper', 'bench', 'sumo', 'loops'} <= names, f'installed: {names}; make setup?'
     with pytest.raises(SystemExit) as exc:
         cli.main(['--help'])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    assert '{associate,bench,paper,sumo}' in out
+    listed = re.search(r'\{([a-z,]+)\}', out).group(1).split(',')
+    assert {'associate', 'bench', 'loops', 'paper', 'sumo'} <= set(listed)
+    assert listed == sorted(listed)
     assert "reproduce the paper's experiments" in out and 'benchmarks' in out
     with pytest.raises(SystemExit):
         cli.main(['paper', '--help'])

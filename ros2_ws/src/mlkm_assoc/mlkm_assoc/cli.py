@@ -16,12 +16,12 @@ an open road: the rows are pushed in stamp order through ``mlkm_core.streaming``
 method; key = data row number), the committed labels are written, and the revision rate
 (first-published links changed before their commit) and commit latency are printed.
 
-Further subcommands come from the ``mlkm.commands`` entry points of the installed packages
-(this package names none of them): ``mlkm sumo`` from mlkm_sumo, ``mlkm paper`` and
-``mlkm bench`` from mlkm_experiments (``mlkm_experiments.commands``). Each entry point
-``name = module:function`` names a function that takes the arguments after ``mlkm <name>``
-and returns the exit status; the first line of its docstring (else of its module's) is its
-line in ``mlkm --help``.
+Further subcommands come from the ``mlkm.commands`` entry points of the installed packages:
+``mlkm loops`` from this package (``mlkm_assoc.cli_loops``), ``mlkm sumo`` from mlkm_sumo,
+``mlkm paper`` and ``mlkm bench`` from mlkm_experiments (``mlkm_experiments.commands``).
+Each entry point ``name = module:function`` names a function that takes the arguments after
+``mlkm <name>`` and returns the exit status; the first line of its docstring (else of its
+module's) is its line in ``mlkm --help``.
 """
 
 from __future__ import annotations

@@ -123,16 +123,28 @@ def read_layout_file(path: str | Path) -> RoadLayout:
 
 def write_layout_file(path: str | Path, road: RoadLayout, comment: str = '') -> None:
     """Write ``road`` in the format :func:`read_layout_file` reads; ``comment`` (one or more
-    lines) heads the file."""
+    lines) heads the file. A station name the reader would refuse raises LayoutFileError."""
     lay = road.layout
+    bad = [n for n in lay.names if not NAME.match(n)]
+    if bad:
+        raise LayoutFileError(f'{path}: station name {bad[0]!r} is not a topic name token')
     lines = [f'# {c}' for c in comment.splitlines()] if comment else []
-    lines.append(f'road_length_m: {lay.road_length!r}')
+    lines.append(f'road_length_m: {float(lay.road_length)!r}')
     lines.append('stations:')
     for sid, name, x, n in zip(lay.sensor_ids, lay.names, lay.positions, road.lanes):
-        lines.append(f'  - {{id: {int(sid)}, name: {name}, position_m: {float(x)!r}, lanes: {n}}}')
+        lines.append(
+            f'  - {{id: {int(sid)}, name: {_scalar(name)}, position_m: {float(x)!r}, '
+            f'lanes: {int(n)}}}'
+        )
     for key, values in (('entries_m', road.entries), ('exits_m', road.exits)):
         lines.append(f'{key}: [{", ".join(repr(float(v)) for v in values)}]')
     Path(path).write_text('\n'.join(lines) + '\n', encoding='utf-8')
+
+
+def _scalar(name: str) -> str:
+    """``name`` as YAML reads it back: quoted where YAML would take it for another type
+    (``on``, ``no``, ``null``, ...)."""
+    return name if yaml.safe_load(name) == name else f"'{name}'"
 
 
 def _unknown(doc: dict, known: tuple[str, ...], where: str) -> None:

@@ -9,7 +9,8 @@ consecutive frames k, k+1 of one observed stretch with p_k < x <= p_k+1:
   passage (``Bounds.min_speed``: both frames at a standstill, yet the front moved across the
   loop), the speed reported is the mean over the frame interval, which is what a dual loop
   measures (distance between its loops over the time between them);
-- the lane and the length are those of the frame nearer the crossing;
+- the lane and the length are those of the frame nearer the crossing (at f = 0.5, the
+  earlier frame);
 - a vehicle is detected at most once per station: the first crossing counts. A stopped
   vehicle whose position jitters back and forth across a loop is one passage, as it is to a
   real loop (which holds its presence while the vehicle stands on it);
@@ -20,8 +21,9 @@ consecutive frames k, k+1 of one observed stretch with p_k < x <= p_k+1:
 observation starts and ends, as on a road with ramps. **Closed** loops keep only the vehicles
 detected at every station, the paper's closed road (every target passes every sensor).
 
-Stamps are rounded to 1 ms and speeds to 1 mm/s (what a loop controller reports), so that the
-detections written to CSV and read back are the ones associated in memory.
+Stamps are rounded to 1 ms, speeds to 1 mm/s and lengths to 1 cm (what a loop controller
+reports, and the decimals ``mlkm_core.csvout`` writes), so that the detections written to CSV
+and read back are the ones associated in memory.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ LIVE = Bounds()
 GAP_FACTOR = 1.5
 STAMP_DECIMALS = 3  # 1 ms
 SPEED_DECIMALS = 3  # 1 mm/s
+LENGTH_DECIMALS = 2  # 1 cm
 
 
 @dataclass(frozen=True)
@@ -47,7 +50,7 @@ class Loops:
     """Virtual loop detections: the dataset (truth = vehicle ids) and what they cover."""
 
     dataset: Dataset
-    lanes: int  # lanes of the road (the largest lane index seen + 1), 0 when unknown [-]
+    lanes: int  # lanes of the road (the largest lane index of any frame + 1), 0: unknown [-]
     closed: bool
     vehicles_seen: int  # vehicles in the trajectories [-]
     vehicles_detected: int  # of them, detected at least once (closed: at every station) [-]
@@ -110,7 +113,8 @@ def virtual_loops(
     if closed and len(det):
         vehicles, counts = np.unique(det.target, return_counts=True)
         det = det.subset(np.isin(det.target, vehicles[counts == positions.size]))
-    lanes = int(det.lane.max()) + 1 if len(det) and det.lane.max() >= 0 else 0
+    # the road's lanes, from every frame: the detections kept may not use all of them
+    lanes = int(traj.lane.max()) + 1 if len(traj) and traj.lane.max() >= 0 else 0
     n = int(np.unique(det.target).size) if len(det) else 0
     order = np.lexsort((det.sensor_index, det.stamp))
     return Loops(Dataset(layout, det.subset(order), n), lanes, closed, traj.n_vehicles, n)
@@ -130,5 +134,5 @@ def _crossings(traj: Trajectories, k: np.ndarray, s: int, x: float, bounds: Boun
         np.maximum(np.round(speed, SPEED_DECIMALS), bounds.min_speed),
         traj.vehicle[k],
         traj.lane[near],
-        traj.length[near],
+        np.round(traj.length[near], LENGTH_DECIMALS),
     )

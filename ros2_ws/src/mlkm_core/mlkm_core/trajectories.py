@@ -3,16 +3,20 @@
 Three formats, told apart by their first bytes and header:
 
 - **trajectory CSV** (the format of the shipped NGSIM extract, ``.csv`` or ``.csv.gz``):
-  ``vehicle_id,time_s,y_m,speed_mps,lane_id,length_m``, SI units, ``lane_id`` counted from
-  the left (1 = leftmost, as NGSIM counts);
+  ``vehicle_id,time_s,y_m,speed_mps,lane_id,length_m`` (any order, more columns ignored),
+  SI units, ``lane_id`` counted from the left (1 = leftmost, as NGSIM counts; 0 or empty =
+  unknown), an empty speed or length unknown;
 - **NGSIM** as the program publishes it (``.csv``/``.txt``, comma- or whitespace-separated,
-  with or without its header): ``Vehicle_ID``, ``Frame_ID`` (0.1 s frames), ``Local_Y``
-  [ft], ``v_Vel`` [ft/s], ``Lane_ID`` (1 = leftmost), ``v_Length`` [ft];
+  with or without its header, whose names are matched without case since NGSIM's releases
+  spell them differently, e.g. ``v_length``): ``Vehicle_ID``, ``Frame_ID`` (0.1 s frames),
+  ``Local_Y`` [ft], ``v_Vel`` [ft/s], ``Lane_ID`` (1 = leftmost), ``v_Length`` [ft]. One
+  location per file: vehicle ids repeat between NGSIM's locations;
 - **SUMO FCD** (``--fcd-output``, XML): ``<timestep time>`` with ``<vehicle id x speed lane
   [length] [distance]>``; the position along the road is ``x`` (a straight road along x, as
   every network the product builds) or ``distance`` (``--fcd-output.distance``), the lane is
-  the index at the end of the SUMO lane id (0 = rightmost), the length is read where the
-  output has it (``--fcd-output.attributes`` with ``length``), else unknown.
+  the index at the end of the SUMO lane id (0 = rightmost). SUMO's FCD output has no
+  vehicle length: a ``length`` attribute is read where a file has one (written by another
+  tool), else the length is unknown.
 
 Whatever the format, :class:`Trajectories` holds the frames sorted by vehicle and time, in
 SI units, with the lane counted from the right (the product's convention,
@@ -64,10 +68,16 @@ class Trajectories:
     length: np.ndarray  # vehicle length, NaN = unknown [m]
 
     @staticmethod
-    def build(vehicle, time, position, speed, lane, length) -> Trajectories:
-        """Sorted by (vehicle, time); raises TrajectoryError on non-finite times or
-        positions and on a vehicle seen twice at one time."""
-        v = np.asarray(vehicle, np.int64)
+    def build(vehicle, time, position, speed, lane, length, line=None) -> Trajectories:
+        """Sorted by (vehicle, time); raises TrajectoryError on no frames, on vehicle ids that
+        are not whole numbers, on non-finite times or positions and on a vehicle seen twice at
+        one time. ``line``: the source line of each frame, named in that last error."""
+        raw = np.asarray(vehicle)
+        if raw.size == 0:
+            raise TrajectoryError('no frames')
+        if raw.dtype.kind == 'f' and not np.all(np.isfinite(raw) & (raw == np.round(raw))):
+            raise TrajectoryError('every vehicle id must be a whole number')
+        v = raw.astype(np.int64)
         t = np.asarray(time, float)
         cols = [np.asarray(c, float) for c in (position, speed)]
         lane = np.asarray(lane, np.int64)
@@ -79,7 +89,11 @@ class Trajectories:
         same = (v[1:] == v[:-1]) & (t[1:] == t[:-1])
         if np.any(same):
             i = int(np.flatnonzero(same)[0])
-            raise TrajectoryError(f'vehicle {v[i]} has two frames at {t[i]:g} s')
+            lines = ''
+            if line is not None:
+                a, b = sorted(int(line[order[j]]) for j in (i, i + 1))
+                lines = f' (lines {a} and {b})'
+            raise TrajectoryError(f'vehicle {v[i]} has two frames at {t[i]:g} s{lines}')
         return Trajectories(v, t, cols[0][order], cols[1][order], lane[order], length[order])
 
     def __len__(self) -> int:
@@ -115,8 +129,8 @@ def read_trajectories(
         text = raw.decode('utf-8-sig')
     except UnicodeDecodeError as exc:
         raise TrajectoryError(f'{path}: not UTF-8 text ({exc.reason})') from None
-    first = text.split('\n', 1)[0].strip()
-    if first.split(',')[0].strip() == CSV_COLUMNS[0]:
+    first = [c.strip() for c in text.split('\n', 1)[0].split(',')]
+    if CSV_COLUMNS[0] in first and 'frame_id' not in (c.lower() for c in first):
         return _read_csv(path, text, lanes)
     return _read_ngsim(path, text, lanes)
 
@@ -138,7 +152,7 @@ def _read_csv(path: Path, text: str, lanes: int | None) -> Trajectories:
     if missing:
         raise TrajectoryError(f'{path}: missing column(s) {", ".join(missing)}')
     at = [header.index(c) for c in CSV_COLUMNS]
-    rows = []
+    rows, lines = [], []
     for line, row in enumerate(reader, start=2):
         if not row or not any(c.strip() for c in row):
             continue
@@ -146,41 +160,43 @@ def _read_csv(path: Path, text: str, lanes: int | None) -> Trajectories:
             rows.append([float(row[i]) if row[i].strip() else math.nan for i in at])
         except (ValueError, IndexError):
             raise TrajectoryError(f'{path}, line {line}: not {len(header)} numbers') from None
+        lines.append(line)
     a = np.array(rows, float).reshape(-1, len(CSV_COLUMNS))
     lane_id = np.nan_to_num(a[:, 4], nan=0).astype(np.int64)
-    return _built(path, a[:, 0], a[:, 1], a[:, 2], a[:, 3], lane_id, a[:, 5], lanes)
+    return _built(path, a[:, 0], a[:, 1], a[:, 2], a[:, 3], lane_id, a[:, 5], lanes, lines)
 
 
 def _read_ngsim(path: Path, text: str, lanes: int | None) -> Trajectories:
-    lines = [ln for ln in text.splitlines() if ln.strip()]
+    lines = [(n, ln) for n, ln in enumerate(text.splitlines(), start=1) if ln.strip()]
     if not lines:
         raise TrajectoryError(f'{path}: empty file')
-    split = (lambda s: s.split(',')) if ',' in lines[0] else (lambda s: s.split())
-    first = [c.strip() for c in split(lines[0])]
-    if 'Vehicle_ID' in first:
-        header, body, start = first, lines[1:], 2
+    split = (lambda s: s.split(',')) if ',' in lines[0][1] else (lambda s: s.split())
+    # matched without case: NGSIM's own releases spell some columns differently (v_length)
+    first = [c.strip().lower() for c in split(lines[0][1])]
+    if 'vehicle_id' in first:
+        header, body = first, lines[1:]
     elif _numbers(first):
-        header, body, start = list(NGSIM_COLUMNS), lines, 1
+        header, body = [c.lower() for c in NGSIM_COLUMNS], lines
     else:
         raise TrajectoryError(
             f'{path}: neither a trajectory CSV ({",".join(CSV_COLUMNS)}) nor NGSIM '
             f'(Vehicle_ID, Frame_ID, Local_Y, v_Vel, Lane_ID, v_Length), nor SUMO FCD XML'
         )
-    missing = [c for c in NGSIM_USED if c not in header]
+    missing = [c for c in NGSIM_USED if c.lower() not in header]
     if missing:
         raise TrajectoryError(f'{path}: NGSIM file without column(s) {", ".join(missing)}')
-    at = [header.index(c) for c in NGSIM_USED]
+    at = [header.index(c.lower()) for c in NGSIM_USED]
     rows = []
-    for k, ln in enumerate(body):
+    for n, ln in body:
         cells = split(ln)
         try:
             rows.append([float(cells[i]) for i in at])
         except (ValueError, IndexError):
-            raise TrajectoryError(f'{path}, line {start + k}: not an NGSIM row') from None
+            raise TrajectoryError(f'{path}, line {n}: not an NGSIM row') from None
     a = np.array(rows, float).reshape(-1, len(NGSIM_USED))
     return _built(
         path, a[:, 0], a[:, 1] * NGSIM_FRAME, a[:, 2] * FEET, a[:, 3] * FEET,
-        a[:, 4].astype(np.int64), a[:, 5] * FEET, lanes,
+        a[:, 4].astype(np.int64), a[:, 5] * FEET, lanes, [n for n, _ in body],
     )  # fmt: skip
 
 
@@ -192,10 +208,10 @@ def _numbers(cells: list[str]) -> bool:
     return bool(cells)
 
 
-def _built(path, vehicle, time, y, speed, lane_left, length, lanes) -> Trajectories:
+def _built(path, vehicle, time, y, speed, lane_left, length, lanes, lines) -> Trajectories:
     try:
         return Trajectories.build(
-            vehicle, time, y, speed, _lanes_from_right(lane_left, lanes, path), length
+            vehicle, time, y, speed, _lanes_from_right(lane_left, lanes, path), length, lines
         )
     except TrajectoryError as exc:
         raise TrajectoryError(f'{path}: {exc}') from None
