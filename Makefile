@@ -6,13 +6,14 @@ SHELL := /bin/bash
 ENV := source ./env.sh >/dev/null &&
 BAG ?= bags/sample
 
-.PHONY: help setup demo demo-stream test test-fast lint experiments replay bench clean
+.PHONY: help setup demo demo-stream demo-real test test-fast lint experiments replay bench clean
 
 help:
 	@echo 'make <target>:'
 	@echo '  setup          .venv, ROS 2 Jazzy, pinned deps, colcon build of ros2_ws (idempotent)'
 	@echo '  demo           the live node graph on the default scenario; a bag in bags/'
 	@echo '  demo-stream    the open road in stream mode (SUMO sensors); a bag in bags/'
+	@echo '  demo-real      real NGSIM traffic replayed from a detector log (log_source); a bag in bags/'
 	@echo '  test           ruff and every test tier (what CI runs: .ci/run)'
 	@echo '  test-fast      the tests that need no ROS graph (tests/unit, not marked slow)'
 	@echo '  lint           ruff check and format check, without building ROS (scripts/lint.sh)'
@@ -29,6 +30,9 @@ demo: setup
 
 demo-stream: setup
 	@$(ENV) python scripts/demo_stream.py
+
+demo-real: setup
+	@$(ENV) python scripts/demo_real.py
 
 test: setup
 	@$(ENV) ruff check . && ruff format --check . && python -m pytest tests

@@ -9,13 +9,14 @@ import yaml
 from ament_index_python.packages import get_package_share_directory
 
 from mlkm_assoc import association_node, scorer_node
-from road_sensors import sensor_sim
+from road_sensors import log_params, sensor_sim
 
 
 @pytest.mark.parametrize(
     'package,node,specs',
     [
         ('road_sensors', 'sensor_sim', sensor_sim._sim_specs() + sensor_sim._NODE_SPECS),
+        ('road_sensors', 'log_source', log_params.SPECS),
         ('mlkm_assoc', 'association_node', association_node.SPECS),
         ('mlkm_assoc', 'scorer_node', scorer_node.SPECS),
     ],

@@ -1,13 +1,14 @@
-"""What every simulated road-side source node does around its detections.
+"""What every road-side source node does around its detections.
 
-``SensorSource`` is the base of ``sensor_sim`` and ``sumo_sensors``: it declares the
-parameters, publishes the latched layout, owns one reliable KEEP_ALL publisher per station
-plus ground truth (and EpisodeInfo for an episodic source) behind the shared back-pressure
-policy (``mlkm_ros.publishing``), optional /clock, the pacing by ``real_time_factor`` (0 = as
-fast as delivery allows), the wait for subscribers before the start, EpisodeInfo STARTED and
-ENDED with the per-station counts, the final wait for every acknowledgement and the run's
-error and exit status. A subclass makes its detections: it implements ``_publish_all`` (with
-``_pace``, ``_publish_one`` and the episode messages) and ``_summary``.
+``SensorSource`` is the base of ``sensor_sim``, ``sumo_sensors`` and ``log_source``: it
+declares the parameters, publishes the latched layout, owns one reliable KEEP_ALL publisher
+per station plus ground truth (silent for a source without it) and EpisodeInfo for an
+episodic source, behind the shared back-pressure policy (``mlkm_ros.publishing``), optional
+/clock, the pacing by ``real_time_factor`` (0 = as fast as delivery allows), the wait for
+subscribers before the start, EpisodeInfo STARTED and ENDED with the per-station counts, the
+final wait for every acknowledgement and the run's error and exit status. A subclass makes
+its detections: it implements ``_publish_all`` (with ``_pace``, ``_publish_one`` and the
+episode messages) and ``_summary``.
 """
 
 from __future__ import annotations
@@ -64,11 +65,16 @@ class SensorSource(Node):
         self._exit_code = 0
         self._published = 0
 
-    def _open(self, layout: Layout, episodic: bool, layout_msg: SensorLayout) -> None:
+    def _open(
+        self, layout: Layout, episodic: bool, layout_msg: SensorLayout, truth: bool = True
+    ) -> None:
         """Create the publishers of ``layout``'s stations and publish ``layout_msg``. A
         continuous (not ``episodic``) source has no /road/episode publisher at all (receivers
-        in mode auto tell the two kinds of source apart by it)."""
+        in mode auto tell the two kinds of source apart by it). A source without ground truth
+        (not ``truth``: a detector log without target ids) keeps its ground-truth publisher,
+        so that the waits for subscribers behave alike, but never publishes on it."""
         cfg: DeliveryConfig = self._config
+        self._with_truth = truth
         self._layout_pub: Publisher = self.create_publisher(
             SensorLayout, qos.LAYOUT_TOPIC, qos.LAYOUT_QOS
         )
@@ -194,16 +200,18 @@ class SensorSource(Node):
         vehicle: str = '',
     ) -> bool:
         """One detection of station index ``station`` and its ground truth (after /clock
-        when due); False when interrupted."""
+        when due; no ground truth from a source without it); False when interrupted."""
         if self._clock_pub is not None and (
             self._last_clock is None or t_ns - self._last_clock >= CLOCK_STEP_NS
         ):
             self._clock_pub.publish(Clock(clock=conv.ns_to_time(max(t_ns, 0))))
             self._last_clock = t_ns
         sid = self._ids[station]
-        return self._det_pubs[station].publish(
+        if not self._det_pubs[station].publish(
             conv.detection_to_msg(sid, t_ns, self._positions[station], speed, lane, length)
-        ) and self._truth_pub.publish(
+        ):
+            return False
+        return not self._with_truth or self._truth_pub.publish(
             conv.ground_truth_to_msg(episode, sid, t_ns, target, true_speed, lane, vehicle)
         )
 
