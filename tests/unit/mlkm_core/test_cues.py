@@ -195,14 +195,18 @@ def test_a_cue_name_is_registered_once(colour_cue):
 
 def test_a_cue_left_off_says_why():
     layout, d, _ = swapping_traffic()
-    with_length = Detections(
-        d.sensor_index, d.stamp, d.velocity, d.target, None, np.full(len(d), 4.5)
-    )
+    lengths = 4.0 + (d.target % 3) * 2.0  # 4, 6 and 8 m vehicles
+    with_length = Detections(d.sensor_index, d.stamp, d.velocity, d.target, None, lengths)
     cues = generic_cues(layout, with_length)
     assert [c.name for c in cues.cues] == ['length']
     assert cues.off == {
-        'lane': 'the detections hold no known lane',
+        'lane': 'the detections hold no known lanes, two or more',
         'lane_order': 'not fitted: no queue in a lane (travel times that cannot tell '
         'neighbours apart) found',
     }
     assert generic_cues(layout, d) is None  # neither lane nor length: no cue at all
+    # every vehicle 4.5 m long on one lane: neither tells a vehicle from another
+    same = Detections(
+        d.sensor_index, d.stamp, d.velocity, d.target, np.zeros(len(d), int), np.full(len(d), 4.5)
+    )
+    assert generic_cues(layout, same) is None

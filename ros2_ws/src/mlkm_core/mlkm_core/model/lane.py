@@ -101,8 +101,10 @@ class LaneTracks(CueTracks):
 
 
 def bind(layout: Layout, d: Detections, params: LaneParams) -> LaneCue | None:
-    """The cue on ``d``; None when no lane is known."""
-    if d.lane is None or not np.any(d.lane >= 0):
+    """The cue on ``d``; None when no lane is known, or when every known lane is the same one
+    (a one-lane road): then no vehicle changes lane, the cue carries no information and must
+    not weigh in the links."""
+    if d.lane is None or np.unique(d.lane[d.lane >= 0]).size < 2:
         return None
     return LaneCue(layout, d, params)
 
@@ -134,4 +136,4 @@ def fit(
     return LaneParams(rate, change)
 
 
-KIND = CueKind('lane', needs='known lane', bind=bind, fit=fit, generic=LaneParams())
+KIND = CueKind('lane', needs='known lanes, two or more', bind=bind, fit=fit, generic=LaneParams())

@@ -104,8 +104,14 @@ class LengthTracks(CueTracks):
 
 
 def bind(layout: Layout, d: Detections, params: LengthParams) -> LengthCue | None:
-    """The cue on ``d``; None when no length is known."""
-    if d.length is None or not np.any(np.isfinite(d.length)):
+    """The cue on ``d``; None when no length is known, or when the known lengths vary no more
+    than their measurement noise (every car 4.8 m long): then they tell no vehicle from another,
+    and a cue that carries no information must not weigh in the links (a constant cost per
+    link would still shift every choice between a link and a new track)."""
+    if d.length is None:
+        return None
+    known = d.length[np.isfinite(d.length)]
+    if known.size == 0 or float(np.std(known)) <= max(params.length_noise, FLOOR_LENGTH):
         return None
     return LengthCue(d, params)
 
@@ -130,4 +136,10 @@ def fit(
     return LengthParams(noise, outlier)
 
 
-KIND = CueKind('length', needs='known vehicle length', bind=bind, fit=fit, generic=LengthParams())
+KIND = CueKind(
+    'length',
+    needs='known vehicle lengths that vary more than their noise',
+    bind=bind,
+    fit=fit,
+    generic=LengthParams(),
+)
