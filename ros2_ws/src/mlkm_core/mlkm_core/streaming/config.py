@@ -25,6 +25,13 @@ class StreamConfig:
     # default is the shortest lag whose committed accuracy stays within the benchmark's
     # tolerance of batch (`mlkm bench --only stream`; figures in docs/benchmarks.md).
     lag: float = 15.0
+    # [-] the lag grows (never shrinks) to this many times the 95th percentile of the travel
+    # times to the next station that the measured speeds predict (gap / speed): in slow
+    # traffic (a queue, closely spaced stations) a vehicle takes longer than ``lag`` from one
+    # station to the next, and its link must stay revisable until the next station has seen
+    # it; the speeds are the data's own, so the lag fits the traffic of the road it runs on
+    # (docs/streaming.md). 0 = the lag stays ``lag``
+    lag_factor: float = 2.0
     # [s] the window is re-solved at every multiple of this; longer windows calibrate the
     # methods' model on more tracks, and fewer solves cost less CPU (docs/benchmarks.md)
     solve_interval: float = 10.0
@@ -62,6 +69,10 @@ class StreamConfig:
         METHODS.get(self.method)  # a ValueError naming the choices if unknown
         checks = (
             (math.isfinite(self.lag) and self.lag > 0, 'lag must be a finite number > 0'),
+            (
+                math.isfinite(self.lag_factor) and self.lag_factor >= 0,
+                'lag_factor must be a finite number >= 0',
+            ),
             (
                 math.isfinite(self.solve_interval) and self.solve_interval > 0,
                 'solve_interval must be a finite number > 0',

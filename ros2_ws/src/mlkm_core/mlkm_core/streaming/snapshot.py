@@ -61,7 +61,7 @@ class WindowSnapshots(ImmediateLinks):
         c = self.config
         final = k is None
         bound = math.inf if final else k * c.solve_interval
-        cutoff = math.inf if final else bound - c.lag
+        cutoff = math.inf if final else bound - self.lag
         window = sorted(
             (self._dets[key] for key in self._pending if self._dets[key].stamp < bound),
             key=canon,

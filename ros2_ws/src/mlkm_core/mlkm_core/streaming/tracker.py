@@ -7,6 +7,8 @@ from collections import Counter, deque
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 from mlkm_core.model.motion import MotionParams
 from mlkm_core.streaming.book import COUNTERS, Det, canon
 from mlkm_core.streaming.config import (
@@ -20,6 +22,10 @@ from mlkm_core.types import UNKNOWN_LANE, Layout
 
 #: Most due boundaries left unsolved while ``deferring`` (then solves go on regardless) [-].
 MAX_DEFERRED = 30
+#: Predicted travel times kept for the lag (the latest ones) [-], and the fewest it is grown
+#: from [-].
+TRAVEL_SAMPLES = 2000
+MIN_TRAVEL_SAMPLES = 30
 
 
 class StreamTracker(WindowSnapshots):
@@ -56,6 +62,9 @@ class StreamTracker(WindowSnapshots):
         self._model: CarriedModel | None = None  # the method's, from its last calibrating solve
         self._next_k: int | None = None
         self._solved = False
+        self._lag = config.lag
+        # [s] travel times between consecutive stations of the latest solved tracks
+        self._travel: deque = deque(maxlen=TRAVEL_SAMPLES)
         self._newest = -math.inf
         self._stats: Counter = Counter()
         #: while True, due windows wait (up to MAX_DEFERRED boundaries) instead of being
@@ -70,6 +79,12 @@ class StreamTracker(WindowSnapshots):
         return len(self._dets)
 
     @property
+    def lag(self) -> float:
+        """The commit lag in force [s]: ``config.lag``, grown with the travel times seen
+        (``StreamConfig.lag_factor``)."""
+        return self._lag
+
+    @property
     def committed_until(self) -> float:
         return self._committed_until
 
@@ -82,15 +97,16 @@ class StreamTracker(WindowSnapshots):
         """Counters: pushed, linked, started, late, reordered, committed, assigned,
         false_alarms, revised, solves, degraded, failed_solves, executor_errors (solves the
         executor failed, run in the caller instead), final_tracks, rejected; and the gauges
-        working_set, open_tracks and revision_rate: revised / committed, the share of
-        committed detections whose link first published (the detection it followed in its
-        track, or none) changed before the commit."""
+        working_set, open_tracks, lag (the lag in force [s]) and revision_rate: revised /
+        committed, the share of committed detections whose link first published (the
+        detection it followed in its track, or none) changed before the commit."""
         out = {name: self._stats[name] for name in COUNTERS}
         out['working_set'] = self.working_set
         out['open_tracks'] = len(self._tracks)
         out['revision_rate'] = out['revised'] / out['committed'] if out['committed'] else 0.0
         out['uncommitted'] = len(self._pending)
         out['overloaded'] = int(self._overloaded)
+        out['lag'] = self._lag
         return out
 
     def push(
@@ -240,7 +256,7 @@ class StreamTracker(WindowSnapshots):
             target = min(max(first_k, self._next_k), last_k)
             if target > self._next_k:
                 skipped = (target - 1) * c.solve_interval
-                self._committed_until = max(self._committed_until, skipped - c.lag)
+                self._committed_until = max(self._committed_until, skipped - self.lag)
                 self._finalize(skipped, False)
                 self._next_k = target
             prepared = self._prepare(self._next_k)
@@ -257,7 +273,7 @@ class StreamTracker(WindowSnapshots):
         are over."""
         c = self.config
         bound = math.inf if k is None else k * c.solve_interval
-        cutoff = math.inf if k is None else bound - c.lag
+        cutoff = math.inf if k is None else bound - self.lag
         window = {key for key in self._pending if self._dets[key].stamp < bound}
         due = sorted(
             (self._dets[key] for key in window if self._dets[key].stamp < cutoff), key=canon
@@ -329,9 +345,30 @@ class StreamTracker(WindowSnapshots):
             self._commit([d for d in p.window if d.stamp < p.cutoff], in_window)
         if not final:  # a flush commits up to the newest stamp (``flush``)
             self._committed_until = max(self._committed_until, p.cutoff)
+        self._grow_lag(p)
         self._finalize(p.bound, final)
         since, self._since = self._since, []
         self._relink(since, (self._changed - changed) | set(self._gone))
+
+    def _grow_lag(self, p: PreparedWindow) -> None:
+        """Add the travel times to the next station that the speeds of the window's newest
+        detections predict (gap / speed; those stamped in its last ``solve_interval``, so each
+        detection counts once) and grow the lag to ``lag_factor`` times their 95th percentile
+        (``StreamConfig.lag_factor``). Taken from the snapshot, they are the same whether the
+        solve ran inline or beside the stream."""
+        c = self.config
+        if c.lag_factor <= 0 or p.k is None:
+            return
+        gaps = np.diff(self.layout.positions)
+        start = p.bound - c.solve_interval
+        self._travel.extend(
+            float(gaps[d.sensor] / d.velocity)
+            for d in p.window
+            if d.stamp >= start and d.sensor < gaps.size
+        )
+        if len(self._travel) >= MIN_TRAVEL_SAMPLES:
+            need = c.lag_factor * float(np.quantile(np.fromiter(self._travel, float), 0.95))
+            self._lag = max(self._lag, need)
 
     def _relink(self, keys: list[int], changed: set[int]) -> None:
         """Link ``keys`` (in push order) again at once if their tracks changed."""
