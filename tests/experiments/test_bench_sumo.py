@@ -10,7 +10,7 @@ import pytest
 
 from mlkm_core.associators import AssociatorConfig, make_associator
 from mlkm_core.metrics import score
-from mlkm_experiments.bench import common, sumo
+from mlkm_experiments.bench import common, sumo, sumo_families
 
 
 def test_time_speed_variant_strips_lane_and_length(tmp_path):
@@ -32,6 +32,7 @@ def test_quick_sumo_part_through_the_cli(tmp_path, monkeypatch):
     from mlkm_assoc import cli
 
     monkeypatch.setattr(sumo, 'SEEDS_QUICK', {(5, 3): 1})
+    monkeypatch.setattr(sumo_families, 'plan', lambda quick: None)  # their own test
     monkeypatch.setattr(sumo, 'EXTRA_QUICK', {('ramps', 'clutter', (5, 3)): 1})
     monkeypatch.setitem(sumo.BUDGET, (5, 3), 120.0)
     monkeypatch.chdir(tmp_path)  # the default --out is results/bench under the cwd

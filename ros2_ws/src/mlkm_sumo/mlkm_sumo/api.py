@@ -21,7 +21,7 @@ import numpy as np
 from mlkm_core.types import FALSE_ALARM, Dataset, Detections
 
 from .measurement import PASSAGE, MeasurementConfig, MeasurementStats, Passages, apply
-from .network import SumoError
+from .network import ScenarioFiles, SumoError
 from .runner import SumoRun
 from .scenarios import Road, make_road, scenario
 
@@ -131,14 +131,19 @@ def generate(
     cache_dir: str | Path | None = None,
     step_length: float = 0.2,
     flow: float | None = None,
+    files: ScenarioFiles | None = None,
 ) -> SumoDataset:
     """Run SUMO headless and return the detections of ``n_vehicles`` vehicles (all of them
     driven until they left the road, at most ``duration`` s if given) or, without
     ``n_vehicles``, of ``duration`` seconds of continuous traffic.
 
-    ``flow`` [veh/h] overrides the scenario's demand. Raises SumoError (bad scenario, layout,
-    netconvert or SUMO failure) and ValueError (bad measurement parameters)."""
-    sc = scenario(scenario_name)
+    ``flow`` [veh/h] overrides the scenario's demand. ``files`` replaces the named scenario's
+    sources (a road of ``families``, which then needs ``flow``; ``scenario_name`` is a label).
+    Raises SumoError (bad scenario, layout, netconvert or SUMO failure) and ValueError (bad
+    measurement parameters)."""
+    if files is not None and not flow:
+        raise SumoError('a road from its own sources needs a flow')
+    sc = scenario(scenario_name) if files is None else None
     if n_vehicles is None and duration is None:
         raise SumoError('give n_vehicles, duration, or both')
     if n_vehicles is not None and n_vehicles < 1:
@@ -147,18 +152,19 @@ def generate(
         raise SumoError(f'duration must be > 0 s, got {duration}')
     measurement = measurement or MeasurementConfig()
     layout_rng, measure_rng = _rngs(seed)
-    road = make_road(scenario_name, n_stations, layout_rng, stations_at, cache_dir)
+    road = make_road(scenario_name, n_stations, layout_rng, stations_at, cache_dir, files)
+    flow = flow or sc.flow
     wall0 = _time.perf_counter()
     with SumoRun(road, seed, step_length) as run:
         if n_vehicles is not None:
-            run.add_demand(flow or sc.flow, n_vehicles=n_vehicles)
+            run.add_demand(flow, n_vehicles=n_vehicles)
             limit = run.last_departure + DRAIN_LIMIT
             if duration is not None:
                 limit = min(limit, duration)
             with _progress(progress, n_vehicles, 'veh') as bar:
                 truth = _run_until(run, limit, bar, drain=True)
         else:
-            run.add_demand(flow or sc.flow, until=duration)
+            run.add_demand(flow, until=duration)
             with _progress(progress, duration, 's') as bar:
                 truth = _run_until(run, duration, bar, drain=False)
         mstats = MeasurementStats()

@@ -77,7 +77,7 @@ class SumoRun:
             raise SumoError('another SUMO run is active in this process (libsumo runs one)')
         import libsumo
 
-        files = scenario_files(self.road.scenario)
+        files = self.road.files or scenario_files(self.road.scenario)
         self._tmp = tempfile.TemporaryDirectory(prefix='mlkm_sumo_')
         det = Path(self._tmp.name) / 'detectors.add.xml'
         write_detectors(self.road, det, self.instant_output)

@@ -17,7 +17,7 @@ import numpy as np
 
 from mlkm_core.types import Layout
 
-from .network import SumoError, build_network, scenario_files
+from .network import ScenarioFiles, SumoError, build_network, scenario_files
 
 
 @dataclass(frozen=True)
@@ -135,7 +135,8 @@ class Road:
     ``lanes[i]`` is the number of lanes (one loop each) at station i, ``loops[i][l]`` the
     SUMO lane of lane l (index from the right). ``enter_between[i]`` / ``leave_between[i]``
     say whether vehicles can enter / leave the road between station i and i+1 (a ramp there);
-    ``enter_before_first`` / ``leave_after_last`` likewise outside the stations.
+    ``enter_before_first`` / ``leave_after_last`` likewise outside the stations. ``files``
+    are the sources of a road built outside the named scenarios (``families``), else None.
     """
 
     scenario: str
@@ -147,6 +148,7 @@ class Road:
     enter_between: np.ndarray
     leave_between: np.ndarray
     net_file: Path
+    files: ScenarioFiles | None = None
 
     @property
     def open_between(self) -> np.ndarray:
@@ -181,10 +183,15 @@ def make_road(
     rng: np.random.Generator | None = None,
     stations_at: list[float] | np.ndarray | None = None,
     cache_dir: str | Path | None = None,
+    files: ScenarioFiles | None = None,
 ) -> Road:
-    """Build (or reuse) the scenario's network and place the stations on it."""
-    scenario(name)
-    net = build_network(scenario_files(name), cache_dir)
+    """Build (or reuse) the scenario's network and place the stations on it. ``files``
+    replaces the named scenario's sources (a road of ``families``; ``name`` is then a label)."""
+    own = files
+    if files is None:
+        scenario(name)
+        files = scenario_files(name)
+    net = build_network(files, cache_dir)
     geo = read_geometry(net)
     if stations_at is not None:
         pos = np.asarray(stations_at, dtype=float).ravel()
@@ -219,7 +226,7 @@ def make_road(
     layout = Layout(
         geo.road_length, pos, names=tuple(f'{name}_station_{i}' for i in range(pos.size))
     )
-    return Road(name, layout, lanes, loops, loop_pos, geo.ramps, enter, leave, net)
+    return Road(name, layout, lanes, loops, loop_pos, geo.ramps, enter, leave, net, own)
 
 
 def enters_before_first(road: Road) -> bool:

@@ -12,14 +12,14 @@ from pathlib import Path
 
 from mlkm_core.associators import available_methods
 
-from . import cost, grid, peer, soak, stream, sumo
+from . import cost, grid, peer, real, soak, stream, sumo, sumo_families
 from .plots import plot_all, plot_stream
 from .report import write_readme
 from .targets import evaluate_targets
 
 #: Parts in the order they run: the ones that fork child processes come before the ones that
 #: start DDS participants in this process (soak).
-PARTS = ('grid', 'peer', 'cost', 'sumo', 'live', 'soak', 'stream')
+PARTS = ('grid', 'peer', 'cost', 'real', 'sumo', 'live', 'soak', 'stream')
 
 
 def _run_live(out_dir: Path, log) -> dict:
@@ -51,6 +51,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         '--report-only',
         action='store_true',
         help='run nothing: rewrite README.md, summary.json and the plots from the JSON files',
+    )
+    ap.add_argument(
+        '--real-data',
+        type=Path,
+        default=real.DATA,
+        help=f'NGSIM trajectories of part real (default: {real.DATA})',
+    )
+    ap.add_argument(
+        '--families-only',
+        action='store_true',
+        help='part sumo: run only the scenario families, keep the other cells of sumo.json',
     )
     ap.add_argument(
         '--cache-dir',
@@ -99,8 +110,16 @@ def main(argv: list[str] | None = None) -> int:
             20.0 if quick else cost.COST_LIMIT,
             log,
         ),
+        'real': lambda: real.run_real(
+            methods, real.SEEDS_QUICK if quick else real.SEEDS_FULL, log, args.real_data
+        ),
         'sumo': lambda: sumo.run_sumo(
-            methods, sumo.SEEDS_QUICK if quick else sumo.SEEDS_FULL, log, args.cache_dir
+            methods,
+            sumo.SEEDS_QUICK if quick else sumo.SEEDS_FULL,
+            log,
+            args.cache_dir,
+            families=sumo_families.plan(quick),
+            previous=load('sumo') if args.families_only else None,
         ),
         'live': lambda: _run_live(out_dir, log),
         'soak': lambda: soak.run_soak(

@@ -114,3 +114,58 @@ def plot_stream(out_dir: Path, stream: dict) -> list[str]:
     fig.savefig(out_dir / 'stream_rss.png', dpi=110)
     plt.close(fig)
     return [*files, 'stream_rss.png']
+
+
+def plot_sumo_curves(out_dir: Path, sumo: dict) -> list[str]:
+    """``sumo_curve_<parameter>_<family>.png`` per curve of the SUMO families: mean accuracy
+    (min..max whiskers) of each method against the curve's parameter, both variants."""
+    curves = (sumo.get('families') or {}).get('curves', [])
+    if not curves:
+        return []
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    files = []
+    for cv in curves:
+        pts = [p for p in cv['points'] if 'error' not in p]
+        if not pts:
+            continue
+        fig, ax = plt.subplots(figsize=(8, 4.8))
+        methods = list(pts[0]['variants']['time_speed'])
+        for i, m in enumerate(methods):
+            for v, style in (('lane_length', '-'), ('time_speed', '--')):
+                xs, mean, lo, hi = [], [], [], []
+                for p in pts:
+                    rec = p['variants'][v].get(m)
+                    s = rec['summary'] if rec else {'n': 0}
+                    if s['n'] == 0:
+                        continue
+                    xs.append(p['x'])
+                    mean.append(100 * s['accuracy_mean'])
+                    lo.append(100 * (s['accuracy_mean'] - s['accuracy_min']))
+                    hi.append(100 * (s['accuracy_max'] - s['accuracy_mean']))
+                if xs:
+                    label = f'{m} ({"+ lane, length" if v == "lane_length" else "time, speed"})'
+                    ax.errorbar(
+                        xs, mean, yerr=[lo, hi], fmt=style + 'o', color=f'C{i}', capsize=2,
+                        ms=3, lw=1.2, label=label,
+                    )  # fmt: skip
+        if cv['parameter'] == 'spacing':
+            ax.set_xscale('log')
+            ax.set_xlabel('station spacing [m]')
+        else:
+            ax.set_xlabel('severity (demand / capacity of the bottleneck)')
+        ax.set_xticks([p['x'] for p in pts])
+        ax.set_xticklabels([f'{p["x"]:g}' for p in pts])
+        ax.set_ylabel('accuracy [%] (mean, whiskers min..max over seeds)')
+        ax.set_title(f'SUMO family {cv["family"]}: accuracy against {cv["parameter"]}')
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, ncol=2)
+        fig.tight_layout()
+        name = f'sumo_curve_{cv["parameter"]}_{cv["family"]}.png'
+        fig.savefig(out_dir / name, dpi=110)
+        plt.close(fig)
+        files.append(name)
+    return files

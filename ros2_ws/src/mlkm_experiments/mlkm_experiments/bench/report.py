@@ -7,9 +7,12 @@ from pathlib import Path
 
 from .common import BEST, MODES, pct
 from .grid import grid_cell
+from .plots import plot_sumo_curves
+from .real import report_lines as real_report
 from .soak import report_lines as soak_report
 from .stream_report import report_lines as stream_report
 from .sumo import report_lines as sumo_report
+from .sumo_families_report import report_lines as sumo_families_report
 
 
 def write_readme(out_dir: Path, parts: dict[str, dict], targets: list[dict], meta: dict) -> None:
@@ -173,7 +176,10 @@ def write_readme(out_dir: Path, parts: dict[str, dict], targets: list[dict], met
     else:
         L.append(str(live.get('status', 'not run')))
     L.append('')
+    L += real_report(parts.get('real', {}))
     L += sumo_report(parts.get('sumo', {}))
+    sumo = parts.get('sumo', {})
+    L += sumo_families_report(sumo, plot_sumo_curves(out_dir, sumo))
     L += soak_report(parts.get('soak', {}))
     L += stream_report(parts.get('stream', {}))
     (out_dir / 'README.md').write_text('\n'.join(L) + '\n')

@@ -86,14 +86,27 @@ def run_sumo(
     log: Log,
     cache_dir: Path | None = None,
     extra: dict | None = None,
+    families: dict | None = None,
+    previous: dict | None = None,
 ):
     """Every method (and the peer when Stone Soup is installed) on every scenario and cell,
     then on the ``extra`` cells (default: ``EXTRA_FULL`` with ``SEEDS_FULL``, else
-    ``EXTRA_QUICK``)."""
+    ``EXTRA_QUICK``), then the scenario families of ``families`` (a ``sumo_families.plan``;
+    none without it). With ``previous`` (the part's last JSON: ``--families-only``) only the
+    families run; the other cells are kept from it."""
     import tempfile
 
     from .peer import PeerConfig, stonesoup_version
+    from .sumo_families import plan, run_families
 
+    if previous is not None:
+        out = {k: v for k, v in previous.items() if k not in ('families', 'status')}
+        out['cells_run'] = {k: previous.get(k) for k in ('date', 'wall_s', 'quick')}
+        out.setdefault('cells', [])
+        with tempfile.TemporaryDirectory(prefix='mlkm_bench_sumo_') as tmp:
+            cache = DatasetCache(cache_dir or Path(tmp))
+            out['families'] = run_families(methods, families or plan(False), log, cache)
+        return out
     if extra is None:
         extra = EXTRA_FULL if seeds_per_cell == SEEDS_FULL else EXTRA_QUICK
     cases = [(sc, 'default', cell, n) for cell, n in seeds_per_cell.items() for sc in SCENARIOS]
@@ -127,6 +140,8 @@ def run_sumo(
             out['cells'].append(
                 _run_cell(scenario, measurement, cell, n, cell_methods, cache, log, peer_n)
             )
+        if families:
+            out['families'] = run_families(methods, families, log, cache)
     return out
 
 

@@ -94,6 +94,20 @@ class DatasetCache:
             tmp.replace(path)
         return path
 
+    def family(self, draw) -> Path:
+        """The dataset of a ``mlkm_sumo.families.Draw`` (default measurement), generated
+        once; its sources and network live under ``root/networks``."""
+        from mlkm_sumo.family_sources import draw_key, generate_family
+
+        path = self.root / f'family_{draw.family}_seed{draw.seed}_{draw_key(draw)}.pkl'
+        if not path.exists():
+            ds = generate_family(draw, self.root / 'networks')
+            plain = Dataset(ds.layout, ds.detections, ds.n_targets)
+            tmp = path.with_suffix('.tmp')
+            tmp.write_bytes(pickle.dumps(plain, protocol=pickle.HIGHEST_PROTOCOL))
+            tmp.replace(path)
+        return path
+
     def ramps(
         self, scenario: str, stations: int, seed: int
     ) -> tuple[tuple[float, ...], tuple[float, ...], np.ndarray]:

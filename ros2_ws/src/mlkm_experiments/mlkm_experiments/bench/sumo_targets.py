@@ -1,6 +1,7 @@
 """The accuracy targets on SUMO traffic, and the grid held against a reference run.
 
-All SUMO targets are those of the best method (``BEST``), from ``sumo.json``. The grid
+All SUMO targets are those of the best method (``BEST``), from ``sumo.json``; the scenario
+families' targets are in ``sumo_families_report``. The grid
 reference (``grid_reference.json``) holds the mean accuracies of ``REFERENCE_METHODS`` from a
 committed grid run; every rerun of the grid is compared with it cell by cell.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 from .common import BASELINE, BEST, PEER
 from .grid import grid_cell
 from .sumo import find_cell
+from .sumo_families_report import family_targets
 
 #: the methods whose grid accuracy the reference keeps
 REFERENCE_METHODS = ('multiframe', 'assignment', 'mlkm_robust')
@@ -93,7 +95,7 @@ def sumo_targets(sumo: dict) -> list[dict]:
 
     if not sumo.get('cells'):
         check('accuracy and speed targets', None, str(sumo.get('status', 'not run')))
-        return out
+        return out + family_targets(sumo)
     ll, ts = 'lane_length', 'time_speed'
     check(
         'single_lane, with lane and length: mean >= 99.9%',
@@ -182,7 +184,7 @@ def sumo_targets(sumo: dict) -> list[dict]:
         check(f'200x50: >= 10x faster than {PEER}', ratio >= 10, value)
     else:
         check(f'200x50: >= 10x faster than {PEER}', None, 'not measured')
-    return out
+    return out + family_targets(sumo)
 
 
 def grid_reference_target(grid: dict, reference: dict) -> dict:
