@@ -105,23 +105,10 @@ def main(argv: list[str] | None = None) -> int:
             # DDS already acknowledged at its own pace): wait until it is idle, then stop it
             # with SIGINT so that it closes the bag cleanly.
             collector.spin_until(lambda: False, timeout=0.3)
-            if not graph.procs['bag_recorder'].wait_idle(timeout=60.0):
-                print(
-                    'demo: the recorder stayed busy for 60 s; stopping it anyway', file=sys.stderr
-                )
-            code = graph.stop('bag_recorder', grace=20.0)
-            if code != 0:
-                raise RuntimeError(
-                    f'bag_recorder exited with {code}; log {graph.procs["bag_recorder"].log_path}'
-                )
+            graph.close_recorder('demo')
         except (RuntimeError, KeyboardInterrupt) as exc:
-            graph.stop_all()
             collector.close()
-            print(f'demo: FAILED: {exc}', file=sys.stderr)
-            for proc in graph.procs.values():
-                tail = '\n    '.join(proc.output().splitlines()[-8:])
-                print(f'--- {proc.name} (exit {proc.poll()}):\n    {tail}', file=sys.stderr)
-            return 1
+            return graph.report_failure('demo', exc)
         codes = graph.stop_all()
         collector.close()
     print(

@@ -235,19 +235,10 @@ def main(argv: list[str] | None = None) -> int:
                     f'the stream was not scored to the end: {why} ({scoring_state(collector)})'
                 )
             collector.spin_until(lambda: False, timeout=0.5)  # the last scores
-            if not graph.procs['bag_recorder'].wait_idle(timeout=60.0):
-                print('demo-stream: the recorder stayed busy; stopping it anyway')
-            code = graph.stop('bag_recorder', grace=20.0)
-            if code != 0:
-                raise RuntimeError(f'bag_recorder exited with {code}')
+            graph.close_recorder('demo-stream')
         except (RuntimeError, KeyboardInterrupt) as exc:
-            graph.stop_all()
             collector.close()
-            print(f'demo-stream: FAILED: {exc}', file=sys.stderr)
-            for p in graph.procs.values():
-                tail = '\n    '.join(p.output().splitlines()[-8:])
-                print(f'--- {p.name} (exit {p.poll()}):\n    {tail}', file=sys.stderr)
-            return 1
+            return graph.report_failure('demo-stream', exc)
         codes = graph.stop_all()
         collector.close()
     what = f'SUMO {args.scenario}' if args.source == 'sumo' else 'sensor_sim'

@@ -157,13 +157,8 @@ def main(argv: list[str] | None = None) -> int:
             if why:
                 raise RuntimeError(f'not every episode was scored: {why}')
         except (RuntimeError, KeyboardInterrupt) as exc:
-            graph.stop_all()
             collector.close()
-            print(f'replay: FAILED: {exc}', file=sys.stderr)
-            for proc in graph.procs.values():
-                tail = '\n    '.join(proc.output().splitlines()[-8:])
-                print(f'--- {proc.name} (exit {proc.poll()}):\n    {tail}', file=sys.stderr)
-            return 1
+            return graph.report_failure('replay', exc)
         codes = graph.stop_all()
         collector.close()
     print(format_scores(collector.scores, f'\nreplayed association ({method}):'))
@@ -240,13 +235,8 @@ def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: lis
                 )
             collector.spin_until(lambda: False, timeout=0.5)
         except (RuntimeError, KeyboardInterrupt) as exc:
-            graph.stop_all()
             collector.close()
-            print(f'replay: FAILED: {exc}', file=sys.stderr)
-            for proc in graph.procs.values():
-                tail = '\n    '.join(proc.output().splitlines()[-8:])
-                print(f'--- {proc.name} (exit {proc.poll()}):\n    {tail}', file=sys.stderr)
-            return 1
+            return graph.report_failure('replay', exc)
         codes = graph.stop_all()
         collector.close()
     print(format_stream_scores(collector.scores, f'\nreplayed stream association ({method}):'))

@@ -16,6 +16,7 @@ import os
 import random
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -269,6 +270,29 @@ class Graph:
 
     def stop_all(self) -> dict[str, int]:
         return {name: p.stop() for name, p in reversed(list(self.procs.items()))}
+
+    def close_recorder(self, label: str, name: str = 'bag_recorder') -> None:
+        """Stop the recorder ``name`` once it is idle (it takes what DDS already acknowledged
+        at its own pace; after 60 s busy it is stopped anyway) with SIGINT, so that it closes
+        the bag cleanly; RuntimeError when it exits nonzero."""
+        proc = self.procs[name]
+        if not proc.wait_idle(timeout=60.0):
+            print(
+                f'{label}: the recorder stayed busy for 60 s; stopping it anyway', file=sys.stderr
+            )
+        code = self.stop(name, grace=20.0)
+        if code != 0:
+            raise RuntimeError(f'{name} exited with {code}; log {proc.log_path}')
+
+    def report_failure(self, label: str, exc: BaseException) -> int:
+        """Stop every process and print why the run failed with the last lines of each
+        process's output; returns the exit status of a failed run (1)."""
+        self.stop_all()
+        print(f'{label}: FAILED: {exc}', file=sys.stderr)
+        for proc in self.procs.values():
+            tail = '\n    '.join(proc.output().splitlines()[-8:])
+            print(f'--- {proc.name} (exit {proc.poll()}):\n    {tail}', file=sys.stderr)
+        return 1
 
     def failed(self, ignore: tuple[str, ...] = ()) -> str | None:
         """Name and exit code of a process that exited nonzero, if any."""
