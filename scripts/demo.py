@@ -19,7 +19,14 @@ import sys
 import time
 from pathlib import Path
 
-from mlkm_ros.processes import Graph, ScoreCollector, domain, format_scores, start_association
+from mlkm_ros.processes import (
+    Graph,
+    ScoreCollector,
+    domain,
+    format_scores,
+    replay_hint,
+    start_association,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -118,16 +125,9 @@ def main(argv: list[str] | None = None) -> int:
             f'{args.targets} targets x {args.sensors} sensors:',
         )
     )
-    print(f'bag: {bag_dir}  (replay: make replay BAG={_rel(bag_dir)})')
+    print(replay_hint(bag_dir, ROOT))
     print(f'demo: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
-
-
-def _rel(path: Path) -> str:
-    try:
-        return str(path.relative_to(ROOT))
-    except ValueError:
-        return str(path)
 
 
 if __name__ == '__main__':

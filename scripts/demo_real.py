@@ -39,6 +39,7 @@ from mlkm_ros.processes import (
     domain,
     executable,
     format_scores,
+    replay_hint,
     start_association,
 )
 
@@ -177,16 +178,9 @@ def main(argv: list[str] | None = None) -> int:
         f'offline `mlkm associate --method {args.method}` on the same log: accuracy '
         f'{accuracy:.4f} ({correct}/{total}); live {"equals" if same else "DIFFERS FROM"} it'
     )
-    print(f'bag: {bag_dir}  (replay: make replay BAG={_rel(bag_dir)})')
+    print(replay_hint(bag_dir, ROOT))
     print(f'demo-real: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
-
-
-def _rel(path: Path) -> str:
-    try:
-        return str(path.relative_to(ROOT))
-    except ValueError:
-        return str(path)
 
 
 if __name__ == '__main__':

@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from mlkm_ros.processes import Graph, ScoreCollector, domain, start_association
+from mlkm_ros.processes import Graph, ScoreCollector, domain, replay_hint, start_association
 
 ROOT = Path(__file__).resolve().parents[1]
 NS_PER_S = 1_000_000_000
@@ -249,16 +249,9 @@ def main(argv: list[str] | None = None) -> int:
             f'{args.stations} stations, {args.duration:g} simulated s:',
         )
     )
-    print(f'bag: {bag_dir}  (replay: make replay BAG={_rel(bag_dir)})')
+    print(replay_hint(bag_dir, ROOT))
     print(f'demo-stream: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
-
-
-def _rel(path: Path) -> str:
-    try:
-        return str(path.relative_to(ROOT))
-    except ValueError:
-        return str(path)
 
 
 if __name__ == '__main__':

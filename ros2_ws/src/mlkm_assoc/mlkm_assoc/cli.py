@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mlkm_assoc.cli_args import finite_float, positive_int
 from mlkm_assoc.cli_run import Progress, absolute, run_batch, run_stream
 from mlkm_core.bounds import OFFLINE, Bounds
 from mlkm_core.csvio import (
@@ -243,13 +244,6 @@ def _print_stream(result) -> None:
         )
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError('must be >= 1')
-    return value
-
-
 def _seed(text: str) -> int:
     try:
         value = int(text)
@@ -260,20 +254,8 @@ def _seed(text: str) -> int:
     return value
 
 
-def _finite(text: str) -> float:
-    import math
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError('must be finite')
-    return value
-
-
 def _positions(text: str) -> tuple[float, ...]:
-    values = tuple(_finite(x) for x in text.split(',') if x.strip())
+    values = tuple(finite_float(x) for x in text.split(',') if x.strip())
     if any(v < 0 for v in values):
         raise argparse.ArgumentTypeError('positions must be >= 0')
     return values
@@ -297,13 +279,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     a.add_argument(
         '--segment-size',
-        type=_positive,
+        type=positive_int,
         default=default_k,
         help=f'sensors per segment K (default: {default_k})',
     )
     a.add_argument(
         '--targets',
-        type=_positive,
+        type=positive_int,
         default=None,
         help='number of targets (default: the largest per-sensor count)',
     )
@@ -317,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
         ('--min-stamp', bounds.min_stamp, 'earliest accepted stamp [s]'),
         ('--max-stamp', bounds.max_stamp, 'latest accepted stamp [s]'),
     ):
-        a.add_argument(flag, type=_finite, default=value, help=f'{what} (default: {value:g})')
+        a.add_argument(flag, type=finite_float, default=value, help=f'{what} (default: {value:g})')
     a.add_argument(
         '--skip-invalid',
         action='store_true',
@@ -341,7 +323,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     a.add_argument(
         '--lag',
-        type=_finite,
+        type=finite_float,
         default=StreamConfig.lag,
         help=f'with --stream: stamp time [s] a link may still be revised (default: '
         f'{StreamConfig.lag:g})',

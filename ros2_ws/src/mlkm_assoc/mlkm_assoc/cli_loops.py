@@ -20,7 +20,6 @@ all); nothing is written then.
 from __future__ import annotations
 
 import argparse
-import math
 import shlex
 import sys
 from pathlib import Path
@@ -28,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mlkm_assoc.cli import _output_problem
+from mlkm_assoc.cli_args import finite_float, positive_int
 from mlkm_core.csvout import write_detections
 from mlkm_core.layout_file import LayoutFileError, RoadLayout, write_layout_file
 from mlkm_core.loops import covered_span, even_positions, virtual_loops
@@ -51,28 +51,8 @@ class _Refused(Exception):
     """Bad input: the one-line message of ``mlkm loops: error:``."""
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not an integer: {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
-    return value
-
-
-def _metres(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f'must be finite, got {text!r}')
-    return value
-
-
 def _positions(text: str) -> list[float]:
-    values = [_metres(x.strip()) for x in text.split(',') if x.strip()]
+    values = [finite_float(x.strip()) for x in text.split(',') if x.strip()]
     if not values:
         raise argparse.ArgumentTypeError('no position given')
     return values
@@ -96,7 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     where = p.add_mutually_exclusive_group()
     where.add_argument(
         '--stations',
-        type=_count,
+        type=positive_int,
         metavar='N',
         help=f'this many stations evenly spaced from --start to --end (default: '
         f'{DEFAULT_STATIONS})',
@@ -106,12 +86,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         '--start',
-        type=_metres,
+        type=finite_float,
         metavar='M',
         help='first station [m] (default: start of the covered span)',
     )
     p.add_argument(
-        '--end', type=_metres, metavar='M', help='last station [m] (default: end of the span)'
+        '--end', type=finite_float, metavar='M', help='last station [m] (default: end of the span)'
     )
     p.add_argument(
         '--closed',
@@ -121,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         '--lanes',
-        type=_count,
+        type=positive_int,
         metavar='N',
         help="lanes of the road, to count NGSIM's left-based lane ids from the right "
         '(default: the largest lane id in the file)',

@@ -52,6 +52,7 @@ from mlkm_core.associators.mlkm_robust import (
 from mlkm_core.metrics import score
 from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Dataset, Detections, Layout, link_pairs, segments
+from mlkm_experiments.bench.common import time_speed_only
 
 PARTS = ('ngsim', 'sim', 'sumo')
 SUMO_SCENARIOS = ('highway', 'congested', 'ramps')
@@ -166,27 +167,22 @@ def compare(ds: Dataset, config: AssociatorConfig) -> dict:
     }
 
 
-def _time_speed(ds: Dataset) -> Dataset:
-    d = ds.detections
-    return Dataset(
-        ds.layout, Detections(d.sensor_index, d.stamp, d.velocity, d.target), ds.n_targets
-    )
-
-
 def datasets(
     parts: tuple[str, ...], seeds: int
 ) -> Iterator[tuple[str, Dataset, AssociatorConfig]]:
     """(name, dataset, config) of the chosen parts, ``seeds`` datasets per cell."""
     config = AssociatorConfig()
     if 'ngsim' in parts:
+        from mlkm_core.trajectories import read_trajectories
         from mlkm_experiments.bench import real
 
+        traj = read_trajectories(real.DATA)
         for stations in real.STATIONS:
             for road in real.VARIANTS_ROAD:
-                sets = real.datasets(real.DATA, stations, road, list(range(1, seeds + 1)))
+                sets = real.datasets(traj, stations, road, list(range(1, seeds + 1)))
                 for k, ds in enumerate(sets, 1):
                     tag = f'ngsim {stations:2d} {road:6s} #{k}'
-                    yield f'{tag} time,speed', _time_speed(ds), config
+                    yield f'{tag} time,speed', time_speed_only(ds), config
                     yield f'{tag} +lane,length', ds, config
     if 'sim' in parts:
         from mlkm_core.simulator import simulate
@@ -229,7 +225,7 @@ def _sumo(
         exits=tuple(float(x.position) for x in ramps if x.kind == 'off'),
     )
     tag = f'sumo {scenario:9s} {measurement:7s} #{seed}'
-    yield f'{tag} time,speed', _time_speed(ds), config
+    yield f'{tag} time,speed', time_speed_only(ds), config
     yield f'{tag} +lane,length', ds, config
 
 

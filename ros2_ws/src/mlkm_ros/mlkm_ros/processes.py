@@ -412,6 +412,16 @@ class ScoreCollector:
         self._rclpy.try_shutdown(context=self.context)
 
 
+def replay_hint(bag_dir: Path, root: Path) -> str:
+    """The line a demo ends with: where its bag is and how to replay it (the path relative to
+    ``root``, the repository, where it lies inside)."""
+    try:
+        rel = str(bag_dir.relative_to(root))
+    except ValueError:
+        rel = str(bag_dir)
+    return f'bag: {bag_dir}  (replay: make replay BAG={rel})'
+
+
 def format_scores(scores: dict, title: str) -> str:
     """Per-episode accuracy and the mean, as printed by the demo and the replay."""
     lines = [title, 'episode  method      accuracy  correct/total  link P / R        ARI']

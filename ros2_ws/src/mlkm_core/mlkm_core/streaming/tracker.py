@@ -63,6 +63,7 @@ class StreamTracker(WindowSnapshots):
         self._next_k: int | None = None
         self._solved = False
         self._lag = config.lag
+        self._gaps = np.diff(layout.positions)  # [m] from each station to the next
         # [s] travel times between consecutive stations of the latest solved tracks
         self._travel: deque = deque(maxlen=TRAVEL_SAMPLES)
         self._newest = -math.inf
@@ -359,12 +360,11 @@ class StreamTracker(WindowSnapshots):
         c = self.config
         if c.lag_factor <= 0 or p.k is None:
             return
-        gaps = np.diff(self.layout.positions)
         start = p.bound - c.solve_interval
         self._travel.extend(
-            float(gaps[d.sensor] / d.velocity)
+            float(self._gaps[d.sensor] / d.velocity)
             for d in p.window
-            if d.stamp >= start and d.sensor < gaps.size
+            if d.stamp >= start and d.sensor < self._gaps.size
         )
         if len(self._travel) >= MIN_TRAVEL_SAMPLES:
             need = c.lag_factor * float(np.quantile(np.fromiter(self._travel, float), 0.95))

@@ -13,7 +13,7 @@ import numpy as np
 
 from mlkm_core.metrics import score
 from mlkm_core.simulator import SimConfig
-from mlkm_core.types import Dataset
+from mlkm_core.types import Dataset, Detections
 
 CLUTTER = dict(miss_probability=0.05, false_alarm_rate=0.05, stamp_noise=0.2, velocity_noise=0.5)
 MODES = ('paper', 'clutter')
@@ -122,3 +122,11 @@ def run_budgeted(make_job: JobFactory, n: int, budget: float) -> tuple[list[dict
 
 def pct(x: float | None) -> str:
     return '—' if x is None else f'{100 * x:.2f}'
+
+
+def time_speed_only(ds: Dataset) -> Dataset:
+    """``ds`` with (time, speed) only: lane and length stripped from its detections."""
+    d = ds.detections
+    return Dataset(
+        ds.layout, Detections(d.sensor_index, d.stamp, d.velocity, d.target), ds.n_targets
+    )

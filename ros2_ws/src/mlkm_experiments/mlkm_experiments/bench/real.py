@@ -22,9 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from mlkm_core.associators import AssociatorConfig, DegradedResultWarning, make_associator
-from mlkm_core.types import Dataset, Detections
+from mlkm_core.streaming import StreamConfig
+from mlkm_core.types import Dataset
 
-from .common import BEST, PEER, Log, pct, run_budgeted, summarise, timed_row
+from .common import BEST, PEER, Log, pct, run_budgeted, summarise, time_speed_only, timed_row
 
 #: The trajectories, relative to the repository root (where ``make bench`` runs).
 DATA = Path('data/ngsim_i80/i80_trajectories_a.csv.gz')
@@ -46,11 +47,11 @@ def placement(seed: int) -> float:
     return float(np.random.default_rng(seed).uniform(*START))
 
 
-def datasets(path: Path, stations: int, road: str, seeds: list[int]) -> list[Dataset]:
+def datasets(traj, stations: int, road: str, seeds: list[int]) -> list[Dataset]:
+    """The loops of a cell on ``traj`` (``mlkm_core.trajectories.Trajectories``), one
+    dataset per seed's placement."""
     from mlkm_core.loops import even_positions, virtual_loops
-    from mlkm_core.trajectories import read_trajectories
 
-    traj = read_trajectories(path)
     out = []
     for s in seeds:
         x0 = placement(s)
@@ -60,12 +61,7 @@ def datasets(path: Path, stations: int, road: str, seeds: list[int]) -> list[Dat
 
 
 def variant(ds: Dataset, name: str) -> Dataset:
-    d = ds.detections
-    if name == 'lane_length':
-        return ds
-    return Dataset(
-        ds.layout, Detections(d.sensor_index, d.stamp, d.velocity, d.target), ds.n_targets
-    )
+    return ds if name == 'lane_length' else time_speed_only(ds)
 
 
 def _job(method: str, sets: list[Dataset], name: str):
@@ -78,8 +74,6 @@ def _job(method: str, sets: list[Dataset], name: str):
                     ds.layout, ds.detections, 0.0, 0.0, config_for(ds.layout, ds.detections)
                 )
         elif method == STREAM:
-            from mlkm_core.streaming import StreamConfig
-
             from .stream_lag import stream_labels
 
             def assoc(ds: Dataset):
@@ -108,6 +102,9 @@ def run_real(methods: list[str], seeds: int, log: Log, path: Path = DATA) -> dic
 
     if not path.exists():
         return {'status': f'not run: {path} not found (run from the repository root)'}
+    from mlkm_core.trajectories import read_trajectories
+
+    traj = read_trajectories(path)
     version = stonesoup_version()
     seed_list = list(range(1, seeds + 1))
     out: dict = {
@@ -116,12 +113,12 @@ def run_real(methods: list[str], seeds: int, log: Log, path: Path = DATA) -> dic
         'start_m': list(START),
         'placements_m': {str(s): placement(s) for s in seed_list},
         'peer': {'stonesoup_version': version},
-        'stream_lag_s': _stream_lag(),
+        'stream_lag_s': StreamConfig.lag,
         'cells': [],
     }
     for stations in STATIONS:
         for road in VARIANTS_ROAD:
-            sets = datasets(path, stations, road, seed_list)
+            sets = datasets(traj, stations, road, seed_list)
             cell: dict = {
                 'stations': stations,
                 'road': road,
@@ -146,12 +143,6 @@ def run_real(methods: list[str], seeds: int, log: Log, path: Path = DATA) -> dic
                     )
             out['cells'].append(cell)
     return out
-
-
-def _stream_lag() -> float:
-    from mlkm_core.streaming import StreamConfig
-
-    return StreamConfig.lag
 
 
 def find_cell(real: dict, stations: int, road: str) -> dict | None:

@@ -23,6 +23,8 @@ import numpy as np
 
 from mlkm_core.types import FALSE_ALARM, Dataset, Detections
 
+from .common import time_speed_only
+
 MEASUREMENTS = ('default', 'clutter')
 #: the clutter setting's measurement model (``MeasurementConfig`` fields)
 CLUTTER = {'miss_rate': 0.05, 'stamp_jitter': 0.2}
@@ -123,9 +125,4 @@ class DatasetCache:
 def load(path: Path, variant: str) -> Dataset:
     """A cached dataset; ``time_speed`` strips lane and length from its detections."""
     ds: Dataset = pickle.loads(Path(path).read_bytes())
-    if variant == 'time_speed':
-        d = ds.detections
-        ds = Dataset(
-            ds.layout, Detections(d.sensor_index, d.stamp, d.velocity, d.target), ds.n_targets
-        )
-    return ds
+    return time_speed_only(ds) if variant == 'time_speed' else ds
