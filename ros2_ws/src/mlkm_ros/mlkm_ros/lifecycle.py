@@ -47,6 +47,7 @@ class StopRequest:
     def __init__(self) -> None:
         self._event = threading.Event()
         self.signum: int | None = None
+        self._signalled = False
 
     @property
     def requested(self) -> bool:
@@ -62,9 +63,17 @@ class StopRequest:
 
     def clear(self) -> None:
         self.signum = None
+        self._signalled = False
         self._event.clear()
 
     def handler(self, signum: int, _frame: Any) -> None:
+        """The signal handler. Python runs it in the main thread between two bytecodes, also
+        inside an earlier run of itself: a second signal while the first one holds the
+        event's lock would wait for that lock forever, one nested handler per further
+        signal, until the recursion limit. Only the first signal sets the event."""
+        if self._signalled:
+            return
+        self._signalled = True
         self.request(signum)
 
 
@@ -91,15 +100,22 @@ def stop_signals() -> Iterator[StopRequest]:
 def run(module: str, args: list[str] | None = None) -> int:
     """Entry point of an installed executable: import ``module`` and return its
     ``main(args)``. A stop signal during the import ends the process at once with exit 0
-    (SystemExit: nothing is running yet); from then on it only sets :data:`STOP`."""
+    (SystemExit: nothing is running yet); from then on it only sets :data:`STOP`, and once
+    ``main`` has returned it is ignored: the interpreter's shut-down puts the default
+    handlers back, and a second Ctrl-C (``ros2 launch`` forwards the terminal's) would kill
+    the process with -SIGINT after it decided its exit status."""
     for sig in STOP_SIGNALS:
         signal.signal(sig, _exit_quietly)
     try:
         main: Callable[[list[str] | None], int] = importlib.import_module(module).main
     finally:
         for sig in STOP_SIGNALS:
-            signal.signal(sig, STOP.handler)  # for the rest of the process's life
-    return main(args)
+            signal.signal(sig, STOP.handler)
+    try:
+        return main(args)
+    finally:
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
 
 
 def entry_point(module: str) -> Callable[[], int]:

@@ -1,0 +1,73 @@
+"""A publisher that holds its first messages until the topic has its expected subscribers.
+
+DDS discovers the graph asynchronously: a subscriber started before a node can still be
+matched with the node's publisher only after the node published its first messages, and a
+volatile topic does not deliver those late. A node whose own graph (a scorer, a recorder, a
+user's tracker) must see every message holds them here until its publisher counts
+``least`` subscribers, then publishes them in order and every later message at once.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+
+class HeldPublisher:
+    """``publish`` through ``publisher`` once it counts ``least`` matched subscribers (0: at
+    once); until then the messages are held, in order, and :meth:`poll` (from a timer) or the
+    next ``publish`` releases them. Released once, it never holds again: a subscriber that
+    leaves later does not stop the topic. Thread-safe; ``on_hold(held, count)`` is called at
+    every message held (the node logs it, throttled)."""
+
+    def __init__(
+        self,
+        publisher: Any,
+        least: int,
+        on_hold: Callable[[int, int], None] | None = None,
+    ) -> None:
+        if least < 0:
+            raise ValueError(f'least must be >= 0, got {least}')
+        self._publisher = publisher
+        self._least = least
+        self._on_hold = on_hold
+        self._lock = threading.Lock()
+        self._held: list[Any] | None = [] if least > 0 else None
+
+    @property
+    def least(self) -> int:
+        """Subscribers awaited before the first message goes out."""
+        return self._least
+
+    @property
+    def held(self) -> int:
+        """Messages waiting for the subscribers."""
+        held = self._held
+        return 0 if held is None else len(held)
+
+    @property
+    def released(self) -> bool:
+        return self._held is None
+
+    def publish(self, msg: Any) -> None:
+        with self._lock:
+            if self._held is not None and not self._release():
+                self._held.append(msg)
+                if self._on_hold is not None:
+                    self._on_hold(len(self._held), self._publisher.get_subscription_count())
+                return
+            self._publisher.publish(msg)
+
+    def poll(self) -> bool:
+        """Release the held messages if the subscribers are there; True once released."""
+        with self._lock:
+            return self._held is None or self._release()
+
+    def _release(self) -> bool:
+        if self._publisher.get_subscription_count() < self._least:
+            return False
+        held, self._held = self._held or [], None
+        for msg in held:
+            self._publisher.publish(msg)
+        return True
