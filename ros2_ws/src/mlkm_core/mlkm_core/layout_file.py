@@ -15,6 +15,10 @@ A traffic engineer with a detector log describes the road once::
 the station has. Every problem is a :class:`LayoutFileError` that names the file and the
 entry: a missing or non-numeric field, a duplicate id, name or position, a station off the
 road, an unknown key (a typo must not pass silently).
+
+A file with a top-level ``links:`` key is a road network instead (links, junctions, stations
+on links): ``mlkm_core.network_file`` reads and writes that form, and its
+``mlkm_core.network_file.read_network_file`` reads both forms.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from mlkm_core.types import Layout
+from mlkm_core.types import Layout, default_sensor_name
 
 TOP_KEYS = ('road_length_m', 'stations', 'entries_m', 'exits_m')
 STATION_KEYS = ('id', 'name', 'position_m', 'lanes')
@@ -57,18 +61,33 @@ class RoadLayout:
 
 
 def read_layout_file(path: str | Path) -> RoadLayout:
-    """The road of ``path``; raises LayoutFileError (module docstring)."""
+    """The road of ``path``; raises LayoutFileError (module docstring). A network file
+    (``links:``) is refused here: ``mlkm_core.network_file.read_network_file`` reads both."""
     path = Path(path)
+    doc = load_yaml(path)
+    if isinstance(doc, dict) and 'links' in doc:
+        raise LayoutFileError(
+            f'{path}: a road network (links:), not a single road; read it as a network'
+        )
+    return road_from_mapping(doc, path)
+
+
+def load_yaml(path: Path):
+    """The YAML document of ``path``; LayoutFileError when it cannot be read or parsed."""
     try:
-        doc = yaml.safe_load(path.read_text(encoding='utf-8'))
+        return yaml.safe_load(path.read_text(encoding='utf-8'))
     except OSError as exc:
         raise LayoutFileError(f'{path}: {exc.strerror or exc}') from None
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise LayoutFileError(f'{path}: not YAML ({exc})') from None
+
+
+def road_from_mapping(doc, path: Path) -> RoadLayout:
+    """The single road of a YAML document read from ``path``."""
     if not isinstance(doc, dict):
         raise LayoutFileError(f'{path}: expected a mapping with {", ".join(TOP_KEYS)}')
     where = str(path)
-    _unknown(doc, TOP_KEYS, where)
+    unknown_keys(doc, TOP_KEYS, where)
     road = _number(doc, 'road_length_m', where)
     stations = doc.get('stations')
     if not isinstance(stations, list) or not stations:
@@ -78,11 +97,11 @@ def read_layout_file(path: str | Path) -> RoadLayout:
         at = f'{path}: stations[{k}]'
         if not isinstance(st, dict):
             raise LayoutFileError(f'{at}: expected a mapping with {", ".join(STATION_KEYS)}')
-        _unknown(st, STATION_KEYS, at)
+        unknown_keys(st, STATION_KEYS, at)
         sid = st.get('id')
         if not isinstance(sid, int) or isinstance(sid, bool) or sid < 0:
             raise LayoutFileError(f'{at}: id must be an integer >= 0, got {sid!r}')
-        name = st.get('name', f'sensor_{sid}')
+        name = st.get('name', default_sensor_name(sid))
         if not isinstance(name, str) or not NAME.match(name):
             raise LayoutFileError(
                 f'{at}: name {name!r} is not a topic name token (a letter, then letters, '
@@ -109,7 +128,7 @@ def read_layout_file(path: str | Path) -> RoadLayout:
         if not isinstance(values, list):
             raise LayoutFileError(f'{path}: {key}: a list of positions [m] is needed')
         for v in values:
-            if not _finite(v) or not 0.0 <= v <= road:
+            if not finite(v) or not 0.0 <= v <= road:
                 raise LayoutFileError(f'{path}: {key}: {v!r} is not a position on the road')
         ramps.append(tuple(float(v) for v in values))
     layout = Layout(
@@ -133,7 +152,7 @@ def write_layout_file(path: str | Path, road: RoadLayout, comment: str = '') -> 
     lines.append('stations:')
     for sid, name, x, n in zip(lay.sensor_ids, lay.names, lay.positions, road.lanes):
         lines.append(
-            f'  - {{id: {int(sid)}, name: {_scalar(name)}, position_m: {float(x)!r}, '
+            f'  - {{id: {int(sid)}, name: {scalar(name)}, position_m: {float(x)!r}, '
             f'lanes: {int(n)}}}'
         )
     for key, values in (('entries_m', road.entries), ('exits_m', road.exits)):
@@ -141,25 +160,27 @@ def write_layout_file(path: str | Path, road: RoadLayout, comment: str = '') -> 
     Path(path).write_text('\n'.join(lines) + '\n', encoding='utf-8')
 
 
-def _scalar(name: str) -> str:
+def scalar(name: str) -> str:
     """``name`` as YAML reads it back: quoted where YAML would take it for another type
     (``on``, ``no``, ``null``, ...)."""
     return name if yaml.safe_load(name) == name else f"'{name}'"
 
 
-def _unknown(doc: dict, known: tuple[str, ...], where: str) -> None:
+def unknown_keys(doc: dict, known: tuple[str, ...], where: str) -> None:
+    """LayoutFileError naming the first key of ``doc`` that is not one of ``known``."""
     extra = [k for k in doc if k not in known]
     if extra:
         raise LayoutFileError(f'{where}: unknown key {extra[0]!r} (known: {", ".join(known)})')
 
 
-def _finite(v) -> bool:
+def finite(v) -> bool:
+    """Whether ``v`` is a finite int or float (not a bool) as YAML gives numbers."""
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _number(doc: dict, key: str, where: str) -> float:
     v = doc.get(key)
-    if not _finite(v):
+    if not finite(v):
         raise LayoutFileError(f'{where}: {key} must be a finite number, got {v!r}')
     if key == 'road_length_m' and not v > 0:
         raise LayoutFileError(f'{where}: road_length_m must be > 0, got {v!r}')

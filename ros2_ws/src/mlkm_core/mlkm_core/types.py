@@ -32,6 +32,11 @@ def duplicate_key(sensor_id: int, lane: int, stamp: float, velocity: float) -> t
     return (sensor_id, lane, stamp, 0.0)
 
 
+def default_sensor_name(sensor_id: int) -> str:
+    """The name of a sensor (station) that has none: its detection topic's token."""
+    return f'sensor_{sensor_id}'
+
+
 @dataclass(frozen=True)
 class Layout:
     """A road of length ``road_length`` [m] with sensors at strictly increasing positions.
@@ -60,7 +65,7 @@ class Layout:
         )
         if ids.shape != pos.shape or np.unique(ids).size != ids.size or np.any(ids < 0):
             raise ValueError('sensor ids must be unique, non-negative, one per position')
-        names = tuple(self.names) or tuple(f'sensor_{int(i)}' for i in ids)
+        names = tuple(self.names) or tuple(default_sensor_name(int(i)) for i in ids)
         if len(names) != pos.size or len(set(names)) != len(names):
             raise ValueError('sensor names must be unique, one per position')
         object.__setattr__(self, 'positions', pos)

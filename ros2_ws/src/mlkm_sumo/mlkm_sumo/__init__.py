@@ -4,7 +4,8 @@ Scenarios (``SCENARIOS``) are built from plain-text SUMO sources by netconvert i
 sensor stations carry one loop detector per lane; a measurement model adds noise, misses and
 false alarms. Entry points: ``generate`` (a batch), ``episodes`` (batches of N vehicles that
 all leave the road), ``PassageStream`` (time-ordered passages for a live source), ``road``
-(the stations of a seed, without running SUMO) and ``mlkm_sumo.cli.main`` (``mlkm sumo``).
+(the stations of a seed, without running SUMO) and ``mlkm_sumo.cli.main`` (``mlkm sumo``);
+road networks with junctions: ``road_networks`` (``draw_network``, ``generate_network``).
 """
 
 from .api import Passage, PassageStream, SumoDataset, episodes, generate, road

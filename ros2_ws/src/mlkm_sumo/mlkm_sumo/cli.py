@@ -14,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from mlkm_core.cli_args import renamed_option, seed
 from mlkm_core.csvout import write_detections
 
 from .api import SumoDataset, generate
-from .measurement import KIND_NAMES, MeasurementConfig
+from .measurement import CSV_DECIMALS, KIND_NAMES, MeasurementConfig
 from .network import SumoError
 from .scenarios import SCENARIOS
 
@@ -52,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
         f'lane,length_m). Scenarios: {scenarios}.',
     )
     p.add_argument('--scenario', required=True, help='scenario name (see above)')
-    p.add_argument('--out', required=True, help='detections CSV to write')
+    renamed_option(p, '--output', '--out', required=True, help='detections CSV to write')
     p.add_argument(
         '--vehicles',
         type=int,
@@ -69,11 +70,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         '--stations-at', type=_positions, help='station positions [m], e.g. 500,1200,2600'
     )
-    p.add_argument('--seed', type=int, default=1, help='seed of SUMO, layout and measurement')
+    p.add_argument(
+        '--seed', type=seed, default=1, help='seed of SUMO, layout and measurement (default: 1)'
+    )
     p.add_argument('--flow', type=float, help="demand [vehicles/h] (default: the scenario's)")
     p.add_argument('--step-length', type=float, default=0.2, help='SUMO step [s] (0.2)')
     p.add_argument('--cache-dir', help='network cache (default $XDG_CACHE_HOME/mlkm_sumo)')
-    p.add_argument('--road-out', help='also write the road (lanes per station, ramps) as JSON')
+    renamed_option(
+        p, '--road', '--road-out', help='also write the road (lanes per station, ramps) as JSON'
+    )
     m = p.add_argument_group('measurement model (all off by default)')
     m.add_argument('--stamp-jitter', type=_nonneg, default=0.0, help='time noise std [s]')
     m.add_argument('--speed-noise', type=_nonneg, default=0.0, help='speed noise std [m/s]')
@@ -92,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def write_csv(path: Path, ds: SumoDataset) -> None:
     """Rows sorted by stamp, written atomically (``mlkm_core.csvout``)."""
-    write_detections(path, ds.layout, ds.detections, decimals=(2, 4, 4, 3))
+    write_detections(path, ds.layout, ds.detections, decimals=CSV_DECIMALS)
 
 
 def road_json(ds: SumoDataset) -> dict:
@@ -155,10 +160,10 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    out = Path(args.out)
+    out = Path(args.output)
     write_csv(out, ds)
-    if args.road_out:
-        Path(args.road_out).write_text(json.dumps(road_json(ds), indent=1) + '\n')
+    if args.road:
+        Path(args.road).write_text(json.dumps(road_json(ds), indent=1) + '\n')
     s = ds.stats
     kinds = ', '.join(
         f'{int(np.sum(ds.kind == k))} {name}s' for k, name in enumerate(KIND_NAMES) if k

@@ -31,6 +31,9 @@ KIND_NAMES = ('passage', 'double_report', 'false_alarm')
 #: positive values).
 MIN_SPEED = 0.1
 MIN_LENGTH = 0.5
+#: Decimals of position_m, stamp_s, velocity_mps and length_m in a written detections CSV
+#: (``mlkm_core.csvout``): 1 cm, 0.1 ms, 0.1 mm/s, 1 mm, finer than SUMO's interpolation.
+CSV_DECIMALS = (2, 4, 4, 3)
 
 
 @dataclass(frozen=True)

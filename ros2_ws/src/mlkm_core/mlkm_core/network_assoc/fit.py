@@ -1,0 +1,82 @@
+"""The network model fitted to the data being associated: motion, turns, time lost at junctions.
+
+Pass 1 links with generic parameters (``MotionParams()``, equal turn shares, a generous time
+lost at every junction). From its links: the pairwise model's own maximum-likelihood fit of the
+motion (``pairwise_fit.fit_links``, on the links that cross no junction where there are
+enough of them, so that red lights do not pass for speed scatter), then the turn shares and
+the time lost per connection (``junctions.fit_junctions``) from the travel-time residuals
+under that motion. Pass 2 links with the fitted model; a
+second round of fitting follows, as the links of pass 1 are those of a cruder model. Where
+the stations report vehicle lengths that vary more than their noise, the length cue links
+with its noise fitted the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from mlkm_core.associators.calibration import FIT_BOUNDS, FIT_FACTORS, JUMP_GRID, penalty_of
+from mlkm_core.associators.pairwise_fit import MIN_LINKS, fit_links
+from mlkm_core.model.cues import Cue
+from mlkm_core.model.length import LengthParams, bind_detections
+from mlkm_core.model.length import fit_links as fit_lengths
+from mlkm_core.model.motion import MotionParams, trapezoid_residual
+from mlkm_core.network import RoadNetwork
+from mlkm_core.network_assoc.hops import Hops
+from mlkm_core.network_assoc.junctions import JunctionModel, fit_junctions, generic_junctions
+from mlkm_core.network_assoc.linking import Links, solve
+from mlkm_core.types import Detections
+
+#: rounds of (fit, link) after pass 1
+ROUNDS = 2
+
+
+@dataclass(frozen=True)
+class NetworkModel:
+    """What the tracks of a network are linked with."""
+
+    motion: MotionParams
+    junctions: JunctionModel
+    length: LengthParams | None = None  # the length cue's, None where lengths tell nothing
+
+    def cue(self, d: Detections) -> Cue | None:
+        """The length cue bound to ``d`` (None: off)."""
+        return None if self.length is None else bind_detections(d, self.length)
+
+
+def _link_arrays(hops: Hops, d: Detections, links: Links, sel: np.ndarray):
+    a, b, h = links.a[sel], links.b[sel], links.hop[sel]
+    u = 1.0 / d.velocity
+    zero = np.zeros(a.size)
+    return zero, d.stamp[a], u[a], hops.distance[h], d.stamp[b], u[b]
+
+
+def fit_model(
+    net: RoadNetwork, hops: Hops, d: Detections, links: Links, base: MotionParams
+) -> NetworkModel:
+    """The model fitted on the links of a pass (module docstring)."""
+    plain = np.array([not hops.turns[h] for h in links.hop], bool)
+    sel = plain if plain.sum() >= MIN_LINKS else np.ones(links.a.size, bool)
+    arrays = _link_arrays(hops, d, links, sel)
+    penalty = 2 * penalty_of(int(links.a.size))
+    fit = fit_links(arrays, base, FIT_BOUNDS, FIT_FACTORS, JUMP_GRID, penalty)
+    p = base if fit is None else replace(base, **dict(fit))
+    xa, ta, ua, xb, tb, ub = _link_arrays(hops, d, links, np.ones(links.a.size, bool))
+    e_t, var_t = trapezoid_residual(p, xa, xb, ta, tb, ua, ub)
+    turns = [hops.turns[h] for h in links.hop]
+    lengths = fit_lengths(d, links.a, links.b) if d.length is not None else None
+    return NetworkModel(p, fit_junctions(net, turns, e_t, np.sqrt(var_t), links.hop), lengths)
+
+
+def calibrate_and_link(
+    net: RoadNetwork, hops: Hops, d: Detections
+) -> tuple[np.ndarray, NetworkModel]:
+    """Labels of ``d`` under the model fitted on it, and that model."""
+    model = NetworkModel(MotionParams(), generic_junctions(net), LengthParams())
+    labels, links = solve(hops, d, model.motion, model.junctions, model.cue(d))
+    for _ in range(ROUNDS):
+        model = fit_model(net, hops, d, links, MotionParams())
+        labels, links = solve(hops, d, model.motion, model.junctions, model.cue(d))
+    return labels, model

@@ -1,0 +1,161 @@
+"""Tracks across a road network by one global matching of each detection to its successor.
+
+On one road ``assignment`` links sensor after sensor. A network has no such order: a vehicle
+seen at a station may next be seen on any link that can follow, and a station after a merge
+sees vehicles from several roads. Every candidate link goes forward in time, so the tracks
+are the paths of a min-cost matching between each detection (as a predecessor) and each
+detection (as a successor), the classical successor formulation of multi-target data
+association: a detection with no predecessor starts a track, one with no successor ends it.
+
+A candidate link joins detection i at station s to detection j at a station of a hop from s
+(``hops``), later in time and inside the gate of the pairwise motion model over the hop's
+distance, widened by the time lost at its junctions. Its cost is the sum of parts:
+
+* motion: the pairwise model's NLL of the travel time and speed change over the distance,
+  with the mean and the variance of the time lost at the junctions on the way
+  (``junctions``) added to the travel time's;
+* the turn: -log of the shares of the connections crossed (``junctions``);
+* misses: the stations the hop passes unseen, each -log p_miss;
+* the vehicle length where the stations report it (``model.length``: the same cue as on one
+  road; a lane index means nothing on another link, so the lane is left out).
+
+A track's start costs the new-track cost plus the misses of the stations it must have passed
+unseen since an entry; its end the misses of the stations it would pass before an exit
+(``hops.Hops.before`` / ``after``). A link is made when it costs less than the start and the
+end it saves; a track of one detection is left unassigned (a false alarm), as on one road.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from mlkm_core.associators.linking import gate_pairs, match_sparse, relabel
+from mlkm_core.model.cues import Cue
+from mlkm_core.model.motion import END_MISSES, FLOOR_T, MotionParams, PairwiseModel
+from mlkm_core.network_assoc.hops import Hops
+from mlkm_core.network_assoc.junctions import JunctionModel
+from mlkm_core.types import Detections
+
+
+@dataclass(frozen=True)
+class Links:
+    """The links of a labelling: detection ``a[k]`` -> ``b[k]`` across hop ``hop[k]``."""
+
+    a: np.ndarray
+    b: np.ndarray
+    hop: np.ndarray
+
+
+def hop_cost(
+    p: MotionParams,
+    distance: float,
+    ti: np.ndarray,
+    ui: np.ndarray,
+    tj: np.ndarray,
+    uj: np.ndarray,
+    spread: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(NLL, squared Mahalanobis distance) of links over ``distance`` [m] from (stamp [s],
+    slowness [s/m]) (ti, ui) to (tj, uj) (the time lost at junctions already taken off tj),
+    with the variance [s^2] the junctions add to the travel time."""
+    n = ti.size
+    rows = np.arange(n)
+    pw = p.for_pairwise()
+    if spread > 0.0:  # the travel time's variance holds 2 sigma_t^2
+        base = max(pw.stamp_noise, FLOOR_T) ** 2
+        pw = replace(pw, stamp_noise=float(np.sqrt(base + spread / 2.0)))
+    m = PairwiseModel(pw)
+    m.grow(n)
+    m.start(rows, 0.0, ti, ui)
+    return m.cost(m.predict(rows, distance), tj, uj)
+
+
+def candidates(
+    hops: Hops,
+    d: Detections,
+    p: MotionParams,
+    junctions: JunctionModel,
+    cue: Cue | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(i, j, cost, hop) of every gated candidate link (module docstring); ``cue`` (bound to
+    ``d``) adds its cost to each."""
+    u = 1.0 / d.velocity
+    at = [np.flatnonzero(d.sensor_index == s) for s in range(hops.before.size)]
+    out_i, out_j, out_c, out_h = [], [], [], []
+    for h in range(hops.size):
+        a, b = at[hops.src[h]], at[hops.dst[h]]
+        if a.size == 0 or b.size == 0:
+            continue
+        dist = float(hops.distance[h])
+        turns = hops.turns[h]
+        shift, spread = junctions.lost(h, turns)
+        rows = np.arange(a.size)
+        m = PairwiseModel(p)
+        m.grow(a.size)
+        m.start(rows, 0.0, d.stamp[a], u[a])
+        centre, half = m.gate_window(m.predict(rows, dist))
+        half = np.sqrt(half * half + p.gate * spread)
+        r, c = gate_pairs(centre + shift, half, d.stamp[b])
+        i, j = a[r], b[c]
+        keep = d.stamp[j] > d.stamp[i]
+        i, j = i[keep], j[keep]
+        if i.size == 0:
+            continue
+        nll, d2 = hop_cost(p, dist, d.stamp[i], u[i], d.stamp[j] - shift, u[j], spread)
+        ok = np.isfinite(nll) & (d2 <= p.gate)
+        i, j = i[ok], j[ok]
+        cost = nll[ok] + hops.skipped[h] * p.miss_cost + junctions.turn_cost(turns)
+        if cue is not None:
+            state = cue.tracks(False)
+            pairs = np.arange(i.size)
+            state.grow(i.size)
+            state.start(pairs, i)
+            cost = cost + state.cost(pairs, j)
+        out_i.append(i)
+        out_j.append(j)
+        out_c.append(cost)
+        out_h.append(np.full(i.size, h))
+    if not out_i:
+        z = np.zeros(0, np.int64)
+        return z, z, np.zeros(0), z
+    return (np.concatenate(out_i), np.concatenate(out_j), np.concatenate(out_c),
+            np.concatenate(out_h))  # fmt: skip
+
+
+def solve(
+    hops: Hops,
+    d: Detections,
+    p: MotionParams,
+    junctions: JunctionModel,
+    cue: Cue | None = None,
+) -> tuple[np.ndarray, Links]:
+    """Track ids (-1: a detection left alone) and the links made."""
+    n = len(d)
+    i, j, cost, hop = candidates(hops, d, p, junctions, cue)
+    st = d.sensor_index
+    start = p.new_cost + np.minimum(hops.before[st], p.max_skip + 1) * p.miss_cost
+    end = np.minimum(hops.after[st], END_MISSES) * p.miss_cost
+    weight = cost - start[j] - end[i]
+    rows, cols = match_sparse(i, j, weight, n, n)
+    nxt = np.full(n, -1, np.int64)
+    nxt[rows] = cols
+    has_prev = np.zeros(n, bool)
+    has_prev[cols] = True
+    labels = np.full(n, -1, np.int64)
+    track = 0
+    for s in np.flatnonzero(~has_prev):
+        k = int(s)
+        while k >= 0:
+            labels[k] = track
+            k = int(nxt[k])
+        track += 1
+    # the hop of each link made (the cheapest candidate between the two detections)
+    key = i.astype(np.int64) * n + j
+    order = np.lexsort((cost, key))
+    keys = key[order]
+    first = np.concatenate([[True], keys[1:] != keys[:-1]]) if keys.size else keys.astype(bool)
+    best_key, best_hop = keys[first], hop[order][first]
+    made = best_hop[np.searchsorted(best_key, rows.astype(np.int64) * n + cols)]
+    return relabel(labels), Links(rows, cols, made.astype(np.int64))

@@ -1,0 +1,74 @@
+"""``mlkm bench --only network``: one seed per family through the CLI, its JSON, report and
+targets, and the targets on hand-made results."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from mlkm_experiments.bench import network
+
+
+@pytest.mark.slow
+def test_one_seed_per_family_end_to_end_through_the_cli(tmp_path):
+    from mlkm_assoc import cli
+
+    out = tmp_path / 'out'
+    argv = ['bench', '--quick', '--only', 'network', '--output', str(out)]
+    assert cli.main([*argv, '--cache-dir', str(tmp_path / 'cache')]) == 0
+    data = json.loads((out / 'network.json').read_text())
+    assert [c['family'] for c in data['cells']] == list(network.FAMILIES)
+    for cell in data['cells']:
+        assert cell['seeds'] == [1] and cell['draws'][0]['family'] == cell['family']
+        for variant in network.VARIANTS:
+            runs = cell['variants'][variant]
+            assert set(runs) == {'assignment', 'gmlkm'}
+            for rec in runs.values():
+                (row,) = rec['runs']
+                assert 0.0 < row['accuracy'] <= 1.0
+                assert row['detections'] == cell['detections_mean']
+    # the tracking method beats the G-MLKM baseline on the grid's seed 1 by far
+    grid = data['cells'][2]['variants']['time_speed']
+    assert (
+        grid['assignment']['summary']['accuracy_mean']
+        > grid['gmlkm']['summary']['accuracy_mean'] + 0.05
+    )
+    assert '## Road networks: SUMO network families' in (out / 'README.md').read_text()
+    targets = json.loads((out / 'summary.json').read_text())['targets']
+    assert 'network grid: assignment >= gmlkm + 5 points' in [t['target'] for t in targets]
+
+
+def _cell(family: str, best: tuple[float, float], base: tuple[float, float]) -> dict:
+    def rec(acc: float) -> dict:
+        return {'summary': {'n': 3, 'accuracy_mean': acc, 'accuracy_min': acc,
+                            'accuracy_max': acc}}  # fmt: skip
+
+    return {
+        'family': family,
+        'variants': {
+            v: {'assignment': rec(best[k]), 'gmlkm': rec(base[k])}
+            for k, v in enumerate(network.VARIANTS)
+        },
+    }
+
+
+def test_the_targets_on_hand_made_results():
+    data = {
+        'cells': [
+            _cell('interchange', (0.96, 0.995), (0.90, 0.90)),
+            _cell('arterial', (0.95, 0.96), (0.92, 0.80)),
+        ],
+        'speed': {'seconds': 75.0, 'stations': 120},
+    }
+    got = {t['target']: t['met'] for t in network.network_targets(data)}
+    assert got == {
+        'network interchange: assignment (time, speed) >= 95%': True,
+        'network interchange: assignment (+ lane, length) >= 99%': True,
+        'network interchange: assignment >= gmlkm + 5 points': True,
+        'network arterial: assignment (time, speed) >= 90%': True,
+        'network arterial: assignment (+ lane, length) >= 97%': False,
+        'network arterial: assignment >= gmlkm + 5 points': False,  # +3 points in time, speed
+        'network speed: 2000 vehicles associate in < 60 s': False,
+    }
+    assert network.network_targets({})[0]['met'] is None
