@@ -1,0 +1,73 @@
+"""The open-road graph: SUMO sensor stations, stream association, scoring and a recorder.
+
+    ros2 launch road_sensors stream.launch.py [duration:=120.0] [lag:=30.0] [source:=sim]
+
+The graph of ``make demo-stream``: ``sumo_sensors`` in continuous mode on a SUMO scenario
+(``source:=sim``: ``sensor_sim``'s open road instead) -> ``association_node`` in stream mode
+(every detection linked at once, links committed ``lag`` seconds of stamp time later) ->
+``scorer_node`` in stream mode (accuracy and revision rate per ``window`` of stamp time on
+/mlkm/score), and ``bag_recorder``. Each node reads its ``config/<node>.param.yaml`` and then the
+arguments below. The source exits after ``duration`` simulated seconds; the association node
+flushes the quiet road ``lag`` seconds later and the scorer scores the last window; the other
+nodes stay up until Ctrl-C, which closes the bag.
+``ros2 launch road_sensors stream.launch.py -s`` lists the arguments.
+"""
+
+from mlkm_ros.qos import RECORD_EXCLUDE_REGEX
+from road_sensors.launch_graph import association_node, description, flag, node, source_timing
+
+ARGUMENTS = (
+    ('source', 'sumo', 'sumo (sumo_sensors) or sim (sensor_sim continuous) [-]'),
+    ('scenario', 'ramps', 'SUMO scenario: single_lane, highway, congested or ramps [-]'),
+    ('duration', '120.0', 'simulated time the source publishes [s]'),
+    ('stations', '10', 'sensor stations along the road [-]'),
+    ('stations_at', '', "SUMO: station positions instead, e.g. '300,700,1100' [m]"),
+    ('seed', '1', 'seed of the source [-]'),
+    ('real_time_factor', '0.0', '1.0 = real time, 0 = as fast as delivery allows [-]'),
+    ('start_delay', '1.0', 'pause of the source after its subscribers matched [s]'),
+    ('method', 'multiframe', 'stream associator of association_node (stream_method) [-]'),
+    ('lag', '30.0', 'links revisable until the newest stamp is this far past [s]'),
+    ('window', '30.0', 'scoring window of stamp time [s]'),
+    ('record', 'true', 'record the graph with bag_recorder (true/false) [-]'),
+    ('bag_dir', '', "bag directory to write; '' = bags/rosbag2_<local time> [-]"),
+)
+
+
+def nodes(context):
+    arg = context.launch_configurations
+    record = flag(arg['record'])
+    if arg['source'] not in ('sumo', 'sim'):
+        raise ValueError(f'source:={arg["source"]}: choose sumo or sim')
+    source = {
+        **source_timing(arg, record),
+        'mode': 'continuous',
+        'duration': float(arg['duration']),
+    }
+    if arg['source'] == 'sumo':
+        executable = 'sumo_sensors'
+        source.update(
+            scenario=arg['scenario'],
+            stations=int(arg['stations']),
+            stations_at=arg['stations_at'],
+        )
+    else:
+        executable = 'sensor_sim'
+        source.update(n_sensors=int(arg['stations']))
+    graph = [
+        # its tracks wait for the scorer (+ recorder) and the user's own subscribers
+        association_node(
+            arg,
+            1 + record,
+            {'mode': 'stream', 'stream_method': arg['method'], 'lag': float(arg['lag'])},
+        ),
+        node(arg, 'mlkm_assoc', 'scorer_node', {'mode': 'stream', 'window': float(arg['window'])}),
+        node(arg, 'road_sensors', executable, source),
+    ]
+    if record:
+        recorder = {'output': arg['bag_dir'], 'exclude_regex': RECORD_EXCLUDE_REGEX}
+        graph.append(node(arg, 'rosbag_mcap', 'bag_recorder', recorder))
+    return graph
+
+
+def generate_launch_description():
+    return description(ARGUMENTS, nodes)
