@@ -8,9 +8,12 @@ import numpy as np
 import pytest
 
 from mlkm_core.associators import AssociatorConfig, available_methods, calibration, make_associator
-from mlkm_core.associators.base import DegradedResultWarning
+from mlkm_core.associators.base import DegradedResultWarning, canonical_order
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.linking import merge_double_reports
+from mlkm_core.associators.linking import link, merge_double_reports, relabel
+from mlkm_core.associators.multiframe import FIT_MARGIN
+from mlkm_core.associators.pairwise_fit import kalman_lead
+from mlkm_core.associators.repair import repaired
 from mlkm_core.metrics import accuracy
 from mlkm_core.model import lane, length
 from mlkm_core.model.motion import MotionParams
@@ -278,14 +281,33 @@ def test_cruise_speed_drift_is_fitted_where_it_happens_and_off_where_not():
     assert estimate_params(ds.layout, ds.detections).drift == 0.0
 
 
-@pytest.mark.parametrize('method', ['assignment', 'multiframe'])
-def test_associators_gain_from_the_jumps(method, monkeypatch):
+def test_assignment_gains_from_the_jumps(monkeypatch):
     layout, d = jumpy_traffic(5, jump_prob=0.15, jump_sigma=5.0)
-    with_jumps = accuracy(make_associator(method).associate(layout, d, 120), d.target)
+    with_jumps = accuracy(make_associator('assignment').associate(layout, d, 120), d.target)
     monkeypatch.setattr(calibration, '_fit_jumps', lambda layout, d, seqs, p, bounds: p)
-    pure_ou = accuracy(make_associator(method).associate(layout, d, 120), d.target)
+    pure_ou = accuracy(make_associator('assignment').associate(layout, d, 120), d.target)
     assert with_jumps.accuracy > 0.98
     assert with_jumps.correct > pure_ou.correct
+
+
+def test_the_jumps_are_what_makes_the_kalman_model_fit_jumpy_traffic(monkeypatch):
+    """Without its speed jumps the Kalman model predicts the links of jumpy traffic far worse
+    than the pairwise model (``multiframe`` then searches under the pairwise model's Markov
+    chain); with them it fits, and ``multiframe`` searches under it."""
+    layout, d = jumpy_traffic(5, jump_prob=0.15, jump_sigma=5.0)
+    c = d.subset(canonical_order(d))
+
+    def lead() -> float:
+        p = estimate_params(layout, c)
+        return kalman_lead(
+            layout, c, relabel(repaired(layout, c, link(layout, c, p, 'pairwise'), p)), p
+        )
+
+    assert lead() < FIT_MARGIN
+    with_jumps = accuracy(make_associator('multiframe').associate(layout, d, 120), d.target)
+    assert with_jumps.accuracy > 0.98
+    monkeypatch.setattr(calibration, '_fit_jumps', lambda layout, d, seqs, p, bounds: p)
+    assert lead() > 5 * FIT_MARGIN
 
 
 @pytest.mark.parametrize('method', available_methods())

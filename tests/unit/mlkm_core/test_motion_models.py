@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from mlkm_core.associators.likelihood import sequence_nll
+from mlkm_core.associators.likelihood import sequence_nll, sequence_state
 from mlkm_core.model.kalman import KalmanModel
 from mlkm_core.model.link import make_model
 from mlkm_core.model.motion import GapDelays, MotionParams, PairwiseModel
@@ -248,3 +248,42 @@ def test_a_gap_delay_shifts_and_widens_both_models_predictions():
     assert preds[1].mean[0, 0] == pytest.approx(preds[0].mean[0, 0] + 3.0, rel=1e-12)
     assert preds[1].cov[0, 0, 0] == pytest.approx(preds[0].cov[0, 0, 0] + 2.0, rel=1e-12)
     np.testing.assert_allclose(preds[1].cov[0, 1:, :], preds[0].cov[0, 1:, :])
+
+
+def test_the_pairwise_sequence_likelihood_is_the_sum_of_its_link_costs():
+    """Under the pairwise model a track's likelihood is a Markov chain: its new-track cost,
+    each link's cost from the detection before it alone (sensors 0 -> 1 -> 3, one missed),
+    and the miss costs of the sensors it skipped and will pass unseen after its last one."""
+    layout = Layout(800.0, X)
+    keep = np.array([0, 1, 3])
+    d = Detections(np.arange(6)[keep], T[keep], V[keep], np.zeros(3, np.int64))
+    seqs = np.array([[0, 1, 2]])
+    ones = np.ones(1, bool)
+    got = sequence_nll(layout, d, seqs, P, ones, ones, model='pairwise')[0]
+    m = PairwiseModel(P)
+    m.grow(1)
+    links = 0.0
+    for a, b in ((0, 1), (1, 3)):
+        m.start(np.array([0]), X[a], np.array([T[a]]), np.array([1 / V[a]]))
+        nll, d2 = m.cost(m.predict(np.array([0]), X[b]), np.array([T[b]]), np.array([1 / V[b]]))
+        assert d2[0] < 4 * P.gate  # below the cap: the plain NLL counts
+        links += nll[0]
+    misses = 1 + 2  # sensor 2 skipped; sensors 4 and 5 passed unseen after the last detection
+    want = P.new_cost + links + misses * P.miss_cost
+    assert got == pytest.approx(want, rel=1e-12)
+    # unlike the Kalman model's, which carries the whole history
+    assert sequence_nll(layout, d, seqs, P, ones, ones)[0] != pytest.approx(want, rel=1e-6)
+
+
+@pytest.mark.parametrize('model', ['pairwise', 'kalman'])
+def test_a_saved_prefix_continues_as_the_whole_sequence(model):
+    """The local search filters a shared prefix once and continues it (``sequence_state``,
+    ``save``/``load`` of the motion model): the same NLL as the whole sequence at once."""
+    layout = Layout(800.0, X)
+    d = Detections(np.arange(6), T, V, np.zeros(6, np.int64))
+    ones = np.ones(2, bool)
+    seqs = np.array([[0, 1, 2, 3, 4, 5], [0, 1, 2, -1, 4, 5]])
+    whole = sequence_nll(layout, d, seqs, P, ones, ones, model=model)
+    pre = sequence_state(layout, d, seqs[:, :3], P, ones, model)
+    rest = sequence_nll(layout, d, seqs[:, 3:], P, ones, ones, state=pre.take([0, 1]), model=model)
+    np.testing.assert_allclose(rest, whole, rtol=1e-12)

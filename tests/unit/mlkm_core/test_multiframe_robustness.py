@@ -1,8 +1,9 @@
 """``multiframe`` on inputs that defeat its model: it never crashes and its work is bounded.
 
-* When no starting point of the local search can be scored (the Kalman likelihood is not
-  finite, as on stop-and-go traffic at near-zero speeds), the result is the pairwise
-  assignment's, with a ``DegradedResultWarning``.
+* When no starting point of the local search can be scored (the likelihood is not finite),
+  the result is the pairwise assignment's, with a ``DegradedResultWarning``; stop-and-go
+  traffic, where the Kalman model does not fit, is searched under the pairwise model's Markov
+  chain, without a warning.
 * Congested, near-stationary traffic makes every passage-time gate span most of the episode,
   so the local search has candidates quadratic in the number of tracks; the search scores at
   most ``search_budget`` of them (counted, not timed) and stays deterministic.
@@ -23,7 +24,10 @@ from mlkm_core.associators import (
 )
 from mlkm_core.associators import multiframe as multiframe_module
 from mlkm_core.associators.calibration import estimate_params
-from mlkm_core.associators.linking import link
+from mlkm_core.associators.likelihood import total_nll
+from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.multiframe import kalman_fits
+from mlkm_core.associators.repair import repaired
 from mlkm_core.associators.search import refine
 from mlkm_core.simulator import SimConfig, simulate
 
@@ -88,14 +92,25 @@ def test_multiframe_with_a_budget_labels_every_detection_and_warns():
         )
 
 
-def test_stop_and_go_traffic_gets_the_pairwise_assignment_with_a_warning():
+def test_stop_and_go_traffic_is_searched_under_the_markov_chain():
     # near-zero speeds: the Kalman model (a cruise speed to revert to) predicts the tracks
-    # worse than the pairwise model, whose result multiframe returns instead of searching
+    # clearly worse than the pairwise model; the search runs under the pairwise model's Markov
+    # chain instead, lowers that model's NLL of the pairwise pass, and warns of nothing
     ds = simulate(STOP_AND_GO, 1)
-    with pytest.warns(DegradedResultWarning, match='worse than the pairwise model'):
+    d = ds.detections.subset(canonical_order(ds.detections))
+    with np.errstate(all='ignore'):
+        params = estimate_params(ds.layout, d)
+        start = repaired(ds.layout, d, link(ds.layout, d, params, 'pairwise'), params)
+        assert not kalman_fits(ds.layout, d, relabel(start), params)
+        searched = refine(ds.layout, d, start, params, model='pairwise').labels
+        before = total_nll(ds.layout, d, start, params, 'pairwise')
+        after = total_nll(ds.layout, d, searched, params, 'pairwise')
+    assert after < before - 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter('error', DegradedResultWarning)
         labels = make_associator('multiframe').associate(ds.layout, ds.detections, 30)
     want = make_associator('assignment').associate(ds.layout, ds.detections, 30)
-    np.testing.assert_array_equal(labels, want)
+    assert not np.array_equal(labels, want)
 
 
 def test_default_budget_does_not_limit_ordinary_traffic():

@@ -118,12 +118,23 @@ def test_a_gap_whose_travel_times_scatter_gets_their_spread():
 
 
 def test_the_spread_of_a_gap_keeps_its_tracks_together(monkeypatch):
-    layout, d = scattered_gap(3, 2.0)
-    with_spread = accuracy(make_associator('assignment').associate(layout, d, 80), d.target)
+    """Five draws of the scattered gap: with its spread the tracks hold together (98.4 % on
+    average); without it the gap breaks them (91.3 %), even though the pairwise model's own
+    fit then takes up part of the scatter."""
+
+    def mean_accuracy() -> float:
+        got = []
+        for seed in range(1, 6):
+            layout, d = scattered_gap(seed, 2.0)
+            labels = make_associator('assignment').associate(layout, d, 80)
+            got.append(accuracy(labels, d.target).accuracy)
+        return float(np.mean(got))
+
+    with_spread = mean_accuracy()
     monkeypatch.setattr(calibration, 'estimate_gap_spread', lambda layout, d, labels, p: p)
-    without = accuracy(make_associator('assignment').associate(layout, d, 80), d.target)
-    assert with_spread.accuracy > 0.99
-    assert without.accuracy < 0.9
+    without = mean_accuracy()
+    assert with_spread > 0.975
+    assert without < 0.93
 
 
 @pytest.mark.parametrize('clutter', [False, True])

@@ -95,9 +95,9 @@ def _calibrations(monkeypatch, config: StreamConfig):
     calls = []
     estimate = solve_module.estimate_params
 
-    def counting(layout, d):
+    def counting(layout, d, openings=None):
         calls.append(len(d))
-        return estimate(layout, d)
+        return estimate(layout, d, openings)
 
     monkeypatch.setattr(solve_module, 'estimate_params', counting)
     ds = simulate(SimConfig(n_targets=50, n_sensors=20, **CLUTTER), 0)

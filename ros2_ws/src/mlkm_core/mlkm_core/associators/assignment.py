@@ -37,7 +37,8 @@ import numpy as np
 
 from mlkm_core.associators.base import register
 from mlkm_core.associators.linking import link
-from mlkm_core.associators.tracking import TrackingAssociator, repaired
+from mlkm_core.associators.repair import repaired
+from mlkm_core.associators.tracking import TrackingAssociator
 from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 

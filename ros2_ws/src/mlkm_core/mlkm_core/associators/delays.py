@@ -22,7 +22,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from mlkm_core.model.motion import GapDelays, MotionParams, trapezoid_residual
+from mlkm_core.model.gap_delays import GapDelays
+from mlkm_core.model.motion import MotionParams, trapezoid_residual
 from mlkm_core.types import Detections, Layout, link_pairs
 
 #: a gap whose first-pass links join fewer than this fraction of its detections is searched
@@ -152,6 +153,7 @@ def estimate_gap_spread(
     if not var.any():
         return p
     old = p.delay
+    profiles = ()
     if old is not None:
-        shift, var = shift + old.gap_time, var + old.gap_var
-    return replace(p, delay=GapDelays.per_gap(layout.positions, shift, var))
+        shift, var, profiles = shift + old.gap_time, var + old.gap_var, old.profiles
+    return replace(p, delay=GapDelays.per_gap(layout.positions, shift, var, profiles))

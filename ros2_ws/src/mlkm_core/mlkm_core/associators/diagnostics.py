@@ -24,6 +24,7 @@ def link_residuals(
     pos = layout.positions
     xa, xb = pos[d.sensor_index[a]], pos[d.sensor_index[b]]
     ua, ub = 1.0 / d.velocity[a], 1.0 / d.velocity[b]
+    params = params.for_pairwise()
     nominal = MotionParams(
         sigma=params.sigma,
         length=params.length,

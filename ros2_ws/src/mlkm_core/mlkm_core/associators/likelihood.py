@@ -1,9 +1,12 @@
-"""Likelihood of tracks under the Kalman motion model: the score of ``multiframe``.
+"""Likelihood of tracks under a motion model: the score of ``multiframe``.
 
 ``sequence_nll`` is the marginal negative log-likelihood of detection sequences (one track
-each), computed for many sequences at once; ``total_nll`` scores a whole labelling, so two
-labellings of the same detections can be compared; ``sequence_state`` filters a common prefix
-once so that many continuations of it can be scored (the local search of ``search``).
+each) under the Kalman model (``model.kalman``) or, where that model does not hold, the
+Markov chain of the pairwise model (``motion.PairwiseModel``: each link scored from the
+detection before it alone), computed for many sequences at once; ``total_nll`` scores a whole
+labelling, so two labellings of the same detections can be compared under one model;
+``sequence_state`` filters a common prefix once so that many continuations of it can be scored
+(the local search of ``search``).
 """
 
 from __future__ import annotations
@@ -47,10 +50,11 @@ def _filter(
     birth: np.ndarray,
     rows: dict[str, np.ndarray] | None,
     state: SequenceState | None,
+    model: str,
 ) -> SequenceState:
     """Run the filters of every row over the columns of ``seqs`` (see ``sequence_nll``)."""
     n_seq, width = seqs.shape
-    m = LinkModel(params, 'kalman', rows, cap=4 * params.gate)
+    m = LinkModel(params, model, rows, cap=4 * params.gate)
     if state is None:
         m.grow(n_seq)
         out = np.zeros(n_seq)
@@ -87,8 +91,8 @@ def _filter(
             out[r1] += nll + (s[nxt] - last[r1] - 1) * params.miss_cost
             m.update(pred, t[nxt], u[nxt], det[nxt])
         last[live] = s
-    mo = m.motion
-    return SequenceState(mo.x, mo.mean, mo.cov, out, last, first_sensor, count, m.cue_state)
+    x, mean, cov = m.motion.save()
+    return SequenceState(x, mean, cov, out, last, first_sensor, count, m.cue_state)
 
 
 def sequence_state(
@@ -97,11 +101,12 @@ def sequence_state(
     seqs: np.ndarray,
     params: MotionParams,
     birth: np.ndarray | None = None,
+    model: str = 'kalman',
 ) -> SequenceState:
     """Filter the rows of ``seqs`` without the end-of-track costs, to be continued later by
     ``sequence_nll(..., state=...)`` (rows of the state taken with ``SequenceState.take``)."""
     birth = np.ones(seqs.shape[0], bool) if birth is None else birth
-    return _filter(layout, d, seqs, params, birth, None, None)
+    return _filter(layout, d, seqs, params, birth, None, None, model)
 
 
 def sequence_nll(
@@ -113,8 +118,10 @@ def sequence_nll(
     end: np.ndarray | None = None,
     rows: dict[str, np.ndarray] | None = None,
     state: SequenceState | None = None,
+    model: str = 'kalman',
 ) -> np.ndarray:
-    """Kalman marginal NLL of each detection sequence (rows of ``seqs``, -1 = no detection).
+    """NLL under ``model`` (``kalman`` or ``pairwise``) of each detection sequence (rows of
+    ``seqs``, -1 = no detection).
 
     Columns are visited in order; a row's entries must have increasing sensors (gaps allowed).
     Every further detection pays its innovation NLL, capped (past a squared Mahalanobis
@@ -126,12 +133,12 @@ def sequence_nll(
     the sensors it would pass unseen after its last one (``MotionParams.misses_after``). A
     single detection is a false alarm: the new-track cost only. ``rows`` optionally gives
     per-row motion parameters (see ``KalmanModel``). ``state`` continues rows from
-    ``sequence_state``.
+    ``sequence_state`` (made with the same ``model``).
     """
     n_seq = seqs.shape[0]
     birth = np.ones(n_seq, bool) if birth is None else birth
     end = np.zeros(n_seq, bool) if end is None else end
-    st = _filter(layout, d, seqs, params, birth, rows, state)
+    st = _filter(layout, d, seqs, params, birth, rows, state, model)
     out, count, first_sensor, last = st.out, st.count, st.first_sensor, st.last
     n_s = layout.n_sensors
     several = count >= 2
@@ -171,8 +178,14 @@ def track_sequences(
     return seqs
 
 
-def total_nll(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams) -> float:
-    """Negative log-likelihood of a whole labelling under the Kalman model (comparable between
+def total_nll(
+    layout: Layout,
+    d: Detections,
+    labels: np.ndarray,
+    params: MotionParams,
+    model: str = 'kalman',
+) -> float:
+    """Negative log-likelihood of a whole labelling under ``model`` (comparable between
     labellings of the same detections: every detection is in a track or a false alarm).
 
     Not finite when the model cannot score some track (e.g. a singular innovation covariance
@@ -183,4 +196,4 @@ def total_nll(layout: Layout, d: Detections, labels: np.ndarray, params: MotionP
     if n == 0:
         return 0.0
     ones = np.ones(n, bool)
-    return float(sequence_nll(layout, d, seqs, params, ones, ones).sum())
+    return float(sequence_nll(layout, d, seqs, params, ones, ones, model=model).sum())

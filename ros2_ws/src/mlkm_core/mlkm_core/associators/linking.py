@@ -36,6 +36,7 @@ from mlkm_core.associators.base import canonical_order
 from mlkm_core.model.length import LengthParams
 from mlkm_core.model.link import LinkModel
 from mlkm_core.model.motion import MotionParams
+from mlkm_core.progress import advance
 from mlkm_core.types import Detections, Layout
 
 
@@ -164,6 +165,7 @@ def link(
             last_sensor = np.concatenate([last_sensor, np.full(new.size, s)])
             m.start(ids, x, t[new], u[new], idx[new])
             labels[idx[new]] = ids
+        advance(s + 1, n_s)
     return labels
 
 
@@ -207,9 +209,10 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
     if valid.size == 0:
         return out
     order, head, tail = _track_bounds(d, out, valid)
-    ends = order[tail & ~head]  # last detection of a track with two or more
-    starts = order[head & ~tail]  # first detection of a track with two or more
-    alone = order[head & tail]  # a track of one detection
+    known = d.lane[order] >= 0  # a twin's lane is known: the others need no search
+    ends = order[tail & ~head & known]  # last detection of a track with two or more
+    starts = order[head & ~tail & known]  # first detection of a track with two or more
+    alone = order[head & tail & known]  # a track of one detection
     twins = _twin_test(d, params)
     merged: dict[int, int] = {}
     key_s = d.sensor_index[starts]
@@ -222,7 +225,7 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
         b = int(cand[np.argmin(np.abs(d.stamp[cand] - d.stamp[a]))])
         merged[int(out[b])] = int(out[a])
     if alone.size:
-        tracked = order[~(head & tail)]
+        tracked = order[~(head & tail) & known]
         key_t = d.sensor_index[tracked]
         for b in alone.tolist():
             cand = tracked[key_t == d.sensor_index[b]]

@@ -41,9 +41,11 @@ from mlkm_core.associators.base import register
 from mlkm_core.associators.kmeans import kmeans_labels
 from mlkm_core.associators.linking import match_sparse
 from mlkm_core.associators.mlkm import detect_errors
-from mlkm_core.associators.tracking import TrackingAssociator, repaired
+from mlkm_core.associators.repair import repaired
+from mlkm_core.associators.tracking import TrackingAssociator
 from mlkm_core.model.link import LinkModel
 from mlkm_core.model.motion import MotionParams, PairwiseModel
+from mlkm_core.progress import advance
 from mlkm_core.types import Detections, Layout, segments
 
 
@@ -185,6 +187,7 @@ def correct_by_assignment(
 @register
 class RobustMLKM(TrackingAssociator):
     name = 'mlkm_robust'
+    progress_shares = (0.1, 0.99)  # the segments' K-means take the time (10^4 detections)
 
     def solve_segment(
         self,
@@ -213,7 +216,9 @@ class RobustMLKM(TrackingAssociator):
         # per track: last detection index, last segment
         end_det: list[int] = []
         end_seg: list[int] = []
-        for e, seg in enumerate(segments(layout.n_sensors, self.config.segment_size)):
+        segs = list(segments(layout.n_sensors, self.config.segment_size))
+        for e, seg in enumerate(segs):
+            advance(e, len(segs))
             idx = np.flatnonzero(np.isin(d.sensor_index, seg))
             if idx.size == 0:
                 continue

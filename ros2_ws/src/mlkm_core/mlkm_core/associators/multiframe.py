@@ -24,12 +24,18 @@ length included when reported. On an open road (``AssociatorConfig.entries`` / `
 track that starts after an entry or ends before an exit pays only for the sensors it could have
 passed; tracks that end or start where no target can leave or enter are joined after the search
 where the whole-track cost favours it (``linking.join_fragments``). The local search scores at
-most ``AssociatorConfig.search_budget`` candidates per starting point. The result is the
-pairwise assignment's when the Kalman model predicts the calibrated pairwise tracks clearly
-worse than the pairwise model (``kalman_fits``: stop-and-go traffic, where its likelihood would
-steer the search wrong, and where the search used to cost minutes) or when neither starting
-point can be scored (the likelihood is not finite); a cut-short search and both fallbacks issue
-a ``DegradedResultWarning``.
+most ``AssociatorConfig.search_budget`` candidates per starting point.
+
+Where vehicles keep no speed of their own (stop-and-go traffic: a vehicle's deviations from the
+traffic around it are uncorrelated from one station gap to the next, on NGSIM I-80 r = -0.2 to
+0.13), the Kalman model predicts the links of the calibrated pairwise pass clearly worse than
+the pairwise model (``kalman_fits``), and its likelihood would steer the search wrong. The
+search then runs from the pairwise pass under the pairwise model's Markov chain
+(``likelihood.sequence_nll(model='pairwise')``: each link scored from the detection before it
+alone), which still exchanges tails, mends tracks broken by misses and re-decides the links
+around them. The result is the pairwise assignment's only when no starting point can be
+scored (the likelihood is not finite); that fallback and a cut-short search issue a
+``DegradedResultWarning``.
 
 Why this and not a min-cost flow or a full multi-dimensional assignment: the flow needs
 pairwise (Markov) edge costs, which cannot carry the learnt cruise speed, and the S-D
@@ -42,17 +48,19 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import replace
 
 import numpy as np
 
 from mlkm_core.associators.base import DegradedResultWarning, register
-from mlkm_core.associators.likelihood import sequence_nll, total_nll, track_sequences
+from mlkm_core.associators.likelihood import total_nll
 from mlkm_core.associators.linking import link, relabel
+from mlkm_core.associators.pairwise_fit import kalman_lead
+from mlkm_core.associators.repair import repaired
 from mlkm_core.associators.search import refine
-from mlkm_core.associators.tracking import TrackingAssociator, repaired
-from mlkm_core.model.motion import MotionParams, PairwiseModel
-from mlkm_core.types import Detections, Layout, link_pairs
+from mlkm_core.associators.tracking import TrackingAssociator
+from mlkm_core.model.motion import MotionParams
+from mlkm_core.progress import stage
+from mlkm_core.types import Detections, Layout
 
 #: NLL per link [nats] by which the Kalman model may trail the pairwise model on the pairwise
 #: model's own tracks (which favour it) and still be used: in free flow it trails by less and
@@ -62,81 +70,74 @@ FIT_MARGIN = 0.2
 #: above this many detections the search starts from the Kalman pass only (cost; the second
 #: start matters where few detections make the self-calibration noisy)
 DUAL_START_MAX = 5000
+#: shares of ``track``'s time (``mlkm_core.progress``; measured on 10^5 simulated detections
+#: with clutter): the pairwise pass with its check, then per start its Kalman pass [-]
+PAIRWISE_SHARE = 0.16
+KALMAN_PASS_SHARE = 0.17
 
 
 def kalman_fits(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams) -> bool:
-    """Whether the Kalman model predicts the links of ``labels`` better than the pairwise model.
-
-    Both give the density of a track's next detection (stamp, slowness) given its earlier ones,
-    so their summed log-likelihoods over the same links (capped as in ``sequence_nll``, lane and
-    length left out: they are the same in both) are comparable, up to ``FIT_MARGIN`` per link.
-    The Kalman model conditions on the whole history and must win when its structure (a cruise
-    speed the target reverts to) holds; where it does not (stop-and-go traffic), its likelihood
-    would steer the local search to wrong exchanges.
+    """Whether the Kalman model predicts the links of ``labels`` at most ``FIT_MARGIN`` per link
+    worse than the pairwise model (``pairwise_fit.kalman_lead``). On the pairwise model's own
+    tracks, which favour it, the Kalman model may trail a little and still be the better
+    model; where its structure (a cruise speed the target reverts to) does not hold
+    (stop-and-go traffic), its likelihood would steer the local search to wrong exchanges.
     """
-    p = replace(params, cues=None)
-    a, b = link_pairs(d, labels)
-    if a.size < 10:
-        return True
-    m = PairwiseModel(p)
-    m.grow(a.size)
-    rows = np.arange(a.size)
-    x = layout.positions
-    u = 1.0 / d.velocity
-    m.start(rows, x[d.sensor_index[a]], d.stamp[a], u[a])
-    nll, d2 = m.cost(m.predict(rows, x[d.sensor_index[b]]), d.stamp[b], u[b])
-    pairwise = float(np.sum(nll - 0.5 * np.maximum(d2 - 4 * p.gate, 0.0)))
-    seqs = track_sequences(d, labels, min_len=2)
-    none = np.zeros(seqs.shape[0], bool)
-    kalman = float(sequence_nll(layout, d, seqs, p, none, none).sum())
-    skipped = float((d.sensor_index[b] - d.sensor_index[a] - 1).sum()) * p.miss_cost
-    return bool(kalman - skipped < pairwise + FIT_MARGIN * a.size)
+    return bool(kalman_lead(layout, d, labels, params) < FIT_MARGIN)
 
 
 @register
 class MultiFrameAssociator(TrackingAssociator):
     name = 'multiframe'
+    progress_shares = (0.33, 0.94)
 
     def track(
         self, layout: Layout, d: Detections, n_targets: int, params: MotionParams, given: bool
     ) -> np.ndarray:
         budget = self.config.search_budget
-        with np.errstate(all='ignore'):
+        with np.errstate(all='ignore'), stage(0.0, PAIRWISE_SHARE):
             pairwise = repaired(layout, d, link(layout, d, params, 'pairwise'), params)
             fits = kalman_fits(layout, d, relabel(pairwise), params)
-        if not fits:
-            warnings.warn(
-                'multiframe: the Kalman model predicts the tracks worse than the pairwise model '
-                '(e.g. stop-and-go traffic); returning the pairwise assignment',
-                DegradedResultWarning,
-                stacklevel=3,
-            )
-            return pairwise
-        # local search from two starting points (the Kalman and the pairwise forward pass);
-        # keep the more likely result under the Kalman model
+        # the model the search scores with: the Kalman model where targets keep a speed of
+        # their own; where it predicts the links clearly worse, the Markov chain of the
+        # pairwise model (stop-and-go traffic: a target's deviations from the traffic around
+        # it do not persist from one station gap to the next)
+        if fits:
+            # the second start guards against a noisy self-calibration on few detections; a
+            # model calibrated elsewhere (``motion``, the stream's carried model) does not
+            # need it
+            dual = not given and len(d) <= DUAL_START_MAX
+            runs = [('kalman', 'kalman')] + ([('pairwise', 'kalman')] if dual else [])
+        else:
+            runs = [('pairwise', 'pairwise')]
         best, best_nll = None, math.inf
-        # the second start guards against a noisy self-calibration on few detections; a model
-        # calibrated elsewhere (``motion``, the stream's carried model) does not need it
-        dual = not given and len(d) <= DUAL_START_MAX
-        starts = ('kalman', 'pairwise') if dual else ('kalman',)
+        share = (1.0 - PAIRWISE_SHARE) / len(runs)
         with np.errstate(all='ignore'):  # a non-finite score only disqualifies a start
-            for model in starts:
-                start = pairwise if model == 'pairwise' else link(layout, d, params, model)
-                result = refine(layout, d, start, params, budget=budget)
+            for k, (start_model, model) in enumerate(runs):
+                begin = PAIRWISE_SHARE + k * share
+                with stage(begin, begin + KALMAN_PASS_SHARE * share):
+                    start = (
+                        pairwise
+                        if start_model == 'pairwise'
+                        else link(layout, d, params, start_model)
+                    )
+                with stage(begin + KALMAN_PASS_SHARE * share, begin + share):
+                    result = refine(layout, d, start, params, budget=budget, model=model)
                 if result.exhausted:
                     warnings.warn(
-                        f'multiframe: the local search from the {model} pass stopped at its '
-                        f'budget of {budget} candidates; the result is the best found within it',
+                        f'multiframe: the local search from the {start_model} pass stopped at '
+                        f'its budget of {budget} candidates; the result is the best found '
+                        'within it',
                         DegradedResultWarning,
                         stacklevel=3,
                     )
-                nll = total_nll(layout, d, result.labels, params)
+                nll = total_nll(layout, d, result.labels, params, model)
                 if math.isfinite(nll) and nll < best_nll:
                     best, best_nll = result.labels, nll
         if best is None:
             warnings.warn(
                 'multiframe: no starting point has a finite likelihood under the calibrated '
-                'Kalman model (e.g. near-zero speeds); returning the pairwise assignment',
+                'models (e.g. near-zero speeds); returning the pairwise assignment',
                 DegradedResultWarning,
                 stacklevel=3,
             )

@@ -94,6 +94,7 @@ def _gains(
     cb: np.ndarray,
     cs: np.ndarray,
     window: int,
+    model: str,
 ) -> np.ndarray:
     """(n_cand, n_moves) change of NLL of every move of every candidate (< 0 improves)."""
     n_s = M.shape[1]
@@ -114,7 +115,7 @@ def _gains(
     n_c = ca.size
     birth2 = np.concatenate([a_born, b_born])
     pre = sequence_state(
-        layout, d, np.concatenate([wa[:, :window], wb[:, :window]]), params, birth2
+        layout, d, np.concatenate([wa[:, :window], wb[:, :window]]), params, birth2, model
     )
     sa, sb = wa[:, window:], wb[:, window:]
     suf, owner, end = [sa, sb], [np.arange(n_c), n_c + np.arange(n_c)], [~a_more, ~b_more]
@@ -134,6 +135,7 @@ def _gains(
         birth2[owner],
         np.concatenate(end),
         state=pre.take(owner),
+        model=model,
     ).reshape(len(suf), -1)
     return np.stack(
         [nll[2 + 2 * j] + nll[3 + 2 * j] - nll[0] - nll[1] for j in range(len(MOVES))], axis=1
@@ -148,8 +150,10 @@ def refine(
     budget: int | None = None,
     window: int = 6,
     rounds: int = 10,
+    model: str = 'kalman',
 ) -> SearchResult:
-    """Local search on track exchanges (module doc); ``budget`` None means unbounded."""
+    """Local search on track exchanges (module doc), scored under ``model`` (``kalman`` or
+    ``pairwise``, ``likelihood.sequence_nll``); ``budget`` None means unbounded."""
     n_s = layout.n_sensors
     valid = np.flatnonzero(labels >= 0)
     if valid.size == 0:
@@ -185,6 +189,7 @@ def refine(
                     cb[i : i + CHUNK],
                     cs[i : i + CHUNK],
                     window,
+                    model,
                 )
                 for i in range(0, ca.size, CHUNK)
             ]

@@ -44,6 +44,10 @@ class KalmanModel(MotionModel):
         self.x, self.mean, self.cov = x.copy(), mean.copy(), cov.copy()
         self.origin = np.asarray(origin, float).copy()
 
+    def save(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, mean, cov) of every track, for ``load``."""
+        return self.x, self.mean, self.cov
+
     def _par(self, name: str, tracks: np.ndarray) -> float | np.ndarray:
         if self.rows is not None and name in self.rows:
             return self.rows[name][tracks]
@@ -108,7 +112,7 @@ class KalmanModel(MotionModel):
             cov[:, i, 2] = r[:, 2]
         cov[:, 0, 0] += su2 * np.maximum(i_var, 0)
         if delay is not None:
-            mean[:, 0] += delay.extra_time(self.x[tracks], x)
+            mean[:, 0] += delay.extra_time(self.x[tracks], x, m[:, 0])
             cov[:, 0, 0] += delay.extra_var(self.x[tracks], x)
         q01 = su2 * L * (1 - a) ** 2
         cov[:, 0, 1] += q01

@@ -108,6 +108,11 @@ def bind(layout: Layout, d: Detections, params: LengthParams) -> LengthCue | Non
     than their measurement noise (every car 4.8 m long): then they tell no vehicle from another,
     and a cue that carries no information must not weigh in the links (a constant cost per
     link would still shift every choice between a link and a new track)."""
+    return bind_detections(d, params)
+
+
+def bind_detections(d: Detections, params: LengthParams) -> LengthCue | None:
+    """``bind`` on any detections: the cue needs no road (a road network's links too)."""
     if d.length is None:
         return None
     known = d.length[np.isfinite(d.length)]
@@ -121,10 +126,20 @@ def fit(
 ) -> LengthParams:
     """Length noise and outlier fraction from the links of the tracks ``labels`` (robust to a
     few wrong links); ``base`` (the generic values) where there are too few links."""
+    if d.length is None:
+        return base or LengthParams()
+    a, b = link_pairs(d, labels)
+    return fit_links(d, a, b, base)
+
+
+def fit_links(
+    d: Detections, a: np.ndarray, b: np.ndarray, base: LengthParams | None = None
+) -> LengthParams:
+    """``fit`` on the links ``a[k]`` -> ``b[k]`` (detection indexes), wherever they come from
+    (a road network's links too)."""
     base = base or LengthParams()
     noise, outlier = base.length_noise, base.length_outlier
     if d.length is not None:
-        a, b = link_pairs(d, labels)
         ok = np.isfinite(d.length[a]) & np.isfinite(d.length[b])
         dl = (d.length[b] - d.length[a])[ok]
         if dl.size >= 10:

@@ -41,78 +41,12 @@ from typing import ClassVar
 import numpy as np
 
 from mlkm_core.model.cues import CueSet
+from mlkm_core.model.gap_delays import GapDelays
 from mlkm_core.registry import Registry
 
 LOG2PI = math.log(2.0 * math.pi)
 FLOOR_T = 1e-3  # [s] floor of sigma_t (paper mode has exact stamps)
 FLOOR_V = 1e-3  # [m/s] floor of sigma_v
-
-
-@dataclass(frozen=True)
-class GapDelays:
-    """Extra travel time of the gaps between consecutive sensors, beyond what the speeds at
-    their ends predict: per gap a mean [s] and a variance [s^2] (a queue between two stations
-    holds every vehicle up by about the same time, give or take the stop-and-go waves), kept as
-    sums from the first sensor so that a link over several gaps adds up the gaps it crosses.
-    """
-
-    positions: np.ndarray  # sensor positions along the road [m], increasing
-    time: np.ndarray  # extra time from the first sensor to each sensor [s]
-    var: np.ndarray  # variance of that extra time [s^2]
-    # gaps where the extra time depends on the lane at the gap's first sensor (a lane that ends
-    # at a merge): (gap, lane, extra time [s], its variance [s^2]) of each such lane, used
-    # instead of the gap's own for the links out of that lane (``merges.relink_lane_delays``)
-    lanes: tuple[tuple[int, int, float, float], ...] = ()
-    # gaps where a car of a continuing lane that passes the next sensor right behind a car of a
-    # closing lane (it let that car in) is held up more: (gap, extra time [s], variance [s^2])
-    # (``merges.exchange_merge_order``)
-    yields: tuple[tuple[int, float, float], ...] = ()
-
-    @classmethod
-    def per_gap(cls, positions: np.ndarray, mean: np.ndarray, var: np.ndarray) -> GapDelays:
-        """From the mean [s] and variance [s^2] of each of the n - 1 gaps."""
-        return cls(
-            np.asarray(positions, float).copy(),
-            np.concatenate([[0.0], np.cumsum(mean)]),
-            np.concatenate([[0.0], np.cumsum(var)]),
-        )
-
-    @property
-    def gap_time(self) -> np.ndarray:
-        """Mean extra time of each gap [s]."""
-        return np.diff(self.time)
-
-    @property
-    def gap_var(self) -> np.ndarray:
-        """Variance of each gap's extra time [s^2]."""
-        return np.diff(self.var)
-
-    def _between(self, cum: np.ndarray, x1, x2):
-        top = self.positions.size - 1
-        k1 = np.clip(np.searchsorted(self.positions, x1, side='right') - 1, 0, top)
-        k2 = np.clip(np.searchsorted(self.positions, x2, side='right') - 1, 0, top)
-        return cum[k2] - cum[k1]
-
-    def extra_time(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
-        """Mean extra time [s] from x1 to x2 (negative for x2 < x1)."""
-        return self._between(self.time, x1, x2)
-
-    def extra_var(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
-        """Variance [s^2] of the extra time between x1 and x2, in either direction."""
-        return np.abs(self._between(self.var, x1, x2))
-
-    def with_gap(self, gap: int, mean: float, var: float) -> GapDelays:
-        """The same delays with gap ``gap``'s mean [s] and variance [s^2] replaced."""
-        t, v = self.gap_time.copy(), self.gap_var.copy()
-        t[gap], v[gap] = mean, var
-        return GapDelays.per_gap(self.positions, t, v)
-
-    def mirrored(self) -> GapDelays:
-        """The same delays on the road seen backwards (positions negated and reversed), without
-        those of lanes and merges (a backward link does not know the lane it will leave from)."""
-        return GapDelays(
-            -self.positions[::-1], self.time[-1] - self.time[::-1], self.var[-1] - self.var[::-1]
-        )
 
 
 #: most sensors a track that ends before the last one is charged a miss for
@@ -155,6 +89,12 @@ class MotionParams:
     delay: GapDelays | None = field(default=None, compare=False, repr=False)
     # the cues (lane, length, ...) bound to the detections being associated (None: none)
     cues: CueSet | None = field(default=None, compare=False, repr=False)
+    # the fluctuation and noise parameters the pairwise model links with, fitted under its
+    # own likelihood (``calibration.fit_pairwise``) as (field, value) pairs; None: the fields
+    # above. The Kalman model's likelihood, under which the fields above are fitted, credits
+    # a persistent cruise speed; where traffic has none (stop-and-go), the values it prefers
+    # make the pairwise cost trust the speeds at a gap's two ends too much or too little.
+    pairwise_fit: tuple[tuple[str, float], ...] | None = field(default=None, repr=False)
 
     @staticmethod
     def road_openings(
@@ -174,6 +114,12 @@ class MotionParams:
             last[:k] = np.minimum(last[:k], k - 1)
         return first, last
 
+    def for_pairwise(self) -> MotionParams:
+        """These parameters with the pairwise model's own fit (``pairwise_fit``) in place."""
+        if self.pairwise_fit is None:
+            return self
+        return replace(self, pairwise_fit=None, **dict(self.pairwise_fit))
+
     def on_road(
         self, positions: np.ndarray, entries: tuple[float, ...], exits: tuple[float, ...]
     ) -> MotionParams:
@@ -181,9 +127,15 @@ class MotionParams:
         the given positions [m] (``open_road``; a closed road without either)."""
         return replace(self, open_road=MotionParams.road_openings(positions, entries, exits))
 
-    def extra_time(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
-        """Extra travel time [s] from position x1 to x2 (``delay``; 0 without it)."""
-        return 0.0 if self.delay is None else self.delay.extra_time(x1, x2)
+    def extra_time(
+        self,
+        x1: float | np.ndarray,
+        x2: float | np.ndarray,
+        t1: float | np.ndarray | None = None,
+    ) -> float | np.ndarray:
+        """Extra travel time [s] from position x1 to x2 of a vehicle at x1 at time ``t1``
+        (``delay``; 0 without it)."""
+        return 0.0 if self.delay is None else self.delay.extra_time(x1, x2, t1)
 
     def extra_var(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
         """Variance [s^2] of the extra travel time from x1 to x2 (0 without ``delay``)."""
@@ -263,8 +215,9 @@ def trapezoid_residual(
     """Travel-time residual e_t [s] of links (xa, ta, ua) -> (xb, tb, ub) against the trapezoid
     in slowness plus the gaps' extra time, and its variance [s^2] under the pairwise model's
     nominal (pure OU) component, as ``PairwiseModel.cost`` has them (without jumps)."""
+    p = p.for_pairwise()
     dx = xb - xa
-    e_t = tb - ta - dx * (ua + ub) / 2 - p.extra_time(xa, xb)
+    e_t = tb - ta - dx * (ua + ub) / 2 - p.extra_time(xa, xb, ta)
     sv = max(p.velocity_noise, FLOOR_V)
     var_t = (
         2 * max(p.stamp_noise, FLOOR_T) ** 2
@@ -313,6 +266,16 @@ class MotionModel(ABC):
     def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
         """Take detection i into the track of ``pred`` row i (each track at most once)."""
 
+    @abstractmethod
+    def save(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(position [m], mean (n, 3), covariance (n, 3, 3)) of every track: the state that
+        ``load`` continues (the likelihood's shared prefixes, ``associators.likelihood``)."""
+
+    @abstractmethod
+    def load(self, x: np.ndarray, mean: np.ndarray, cov: np.ndarray, origin: np.ndarray) -> None:
+        """Replace the state of every track (copies) with one ``save`` gave; ``origin`` is
+        the position of each track's first detection [m]."""
+
 
 #: the motion models by name (``link.make_model`` chooses one)
 MODELS: Registry[type[MotionModel]] = Registry('motion model')
@@ -330,7 +293,7 @@ class PairwiseModel(MotionModel):
     name = 'pairwise'
 
     def __init__(self, params: MotionParams) -> None:
-        super().__init__(params)
+        super().__init__(params.for_pairwise())
         self.x = np.zeros(0)
         self.t = np.zeros(0)
         self.u = np.zeros(0)
@@ -367,7 +330,8 @@ class PairwiseModel(MotionModel):
             var_t = var_t + (p.jump_sigma * u * u) ** 2 * dx * dx
         x1 = self.x[tracks]
         var_t = var_t + p.extra_var(x1, pred.x)
-        return self.t[tracks] + dx * u + p.extra_time(x1, pred.x), np.sqrt(p.gate * var_t)
+        t1 = self.t[tracks]
+        return t1 + dx * u + p.extra_time(x1, pred.x, t1), np.sqrt(p.gate * var_t)
 
     def cost(
         self, pred: Prediction, t: np.ndarray, u: np.ndarray
@@ -393,3 +357,12 @@ class PairwiseModel(MotionModel):
 
     def update(self, pred: Prediction, t: np.ndarray, u: np.ndarray) -> None:
         self.start(pred.tracks, pred.x, t, u)
+
+    def save(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, mean, cov) of every track in the filters' layout (``KalmanModel.save``): the
+        mean is (t, u, u), the covariance zero (a detection is taken as it is)."""
+        return self.x, np.column_stack([self.t, self.u, self.u]), np.zeros((self.x.size, 3, 3))
+
+    def load(self, x: np.ndarray, mean: np.ndarray, _cov: np.ndarray, _origin: np.ndarray) -> None:
+        """Replace the state of every track with one saved by ``save``."""
+        self.x, self.t, self.u = x.copy(), mean[:, 0].copy(), mean[:, 1].copy()

@@ -41,6 +41,7 @@ class LinkCost:
     numpy's per-call cost would dominate)."""
 
     def __init__(self, p: MotionParams, layout: Layout) -> None:
+        p = p.for_pairwise()
         self.p = p
         self.positions = [float(x) for x in layout.positions]
         self.noise_t2 = 2 * max(p.stamp_noise, FLOOR_T) ** 2

@@ -11,7 +11,8 @@ and traffic changes slowly: a window of a method that calibrates its motion mode
 on its input (``Associator.calibrates``) either calibrates (and returns the model as a
 ``CarriedModel``) or is given the model of the last calibrating window, carried over to its
 own detections. A model that learnt the order of passage within lanes (a queue) is bound to
-the detections it was learnt on and is not carried: the next window calibrates again.
+the detections it was learnt on and is not carried: the next window calibrates again. The
+count-curve profile of a gap's extra time is dropped from a carried model (its mean stays).
 """
 
 from __future__ import annotations
@@ -41,7 +42,11 @@ class CarriedModel:
 
     @staticmethod
     def of(params: MotionParams) -> CarriedModel:
+        """The model without what ties it to its detections: the cues' own state and the
+        gaps' count-curve profiles (their times; each gap keeps its mean extra time)."""
         cues = params.cues
+        if params.delay is not None and params.delay.profiles:
+            params = replace(params, delay=replace(params.delay, profiles=()))
         return CarriedModel(
             replace(params, cues=None),
             None if cues is None else cues.carried(),
@@ -97,7 +102,9 @@ def solve(problem: WindowProblem) -> WindowSolution:
         ordered = d.subset(canonical_order(d))
         if problem.model is None:
             try:
-                motion = estimate_params(layout, ordered)
+                cfg = problem.config
+                openings = MotionParams.road_openings(layout.positions, cfg.entries, cfg.exits)
+                motion = estimate_params(layout, ordered, openings)
             except ValueError:
                 motion = None  # solve_window replaces the method for this window
             # a model calibrated on too few detections is used for this window only
