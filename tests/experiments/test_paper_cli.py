@@ -29,7 +29,7 @@ def test_exit_status_follows_the_checks(monkeypatch, tmp_path, capsys, checks, c
     from mlkm_assoc import cli
 
     monkeypatch.setattr(paper, 'run', _fake_run(checks))
-    assert cli.main(['paper', '--datasets', '1', '--out', str(tmp_path)]) == code
+    assert cli.main(['paper', '--datasets', '1', '--output', str(tmp_path)]) == code
     out = capsys.readouterr().out
     assert f'{sum(ok for _, ok in checks)}/{len(checks)} checks hold' in out
     if code:

@@ -407,7 +407,7 @@ def test_sumo_subcommand_hands_its_arguments_to_mlkm_sumo(capsys):
     pytest.importorskip('mlkm_sumo')
     assert main(['sumo', '--help']) == 0
     assert 'usage: mlkm sumo' in capsys.readouterr().out
-    assert main(['sumo', '--scenario', 'nope', '--out', 'x.csv']) == 2
+    assert main(['sumo', '--scenario', 'nope', '--output', 'x.csv']) == 2
     assert "mlkm sumo: error: unknown scenario 'nope'" in capsys.readouterr().err
 
 

@@ -18,7 +18,7 @@ FIVE = ['--stations', '5', '--start', '50', '--end', '450']
 
 def _loops(tmp_path, *flags):
     out, lay = tmp_path / 'loops.csv', tmp_path / 'loops.yaml'
-    argv = ['--input', str(NGSIM), *flags, '--output', str(out), '--layout-out', str(lay)]
+    argv = ['--input', str(NGSIM), *flags, '--output', str(out), '--layout', str(lay)]
     return cli_loops.main(argv), out, lay
 
 
@@ -79,7 +79,7 @@ def test_open_road_default_stations_and_lanes_option(tmp_path, capsys):
 
 
 def test_explicit_positions_in_any_order(tmp_path, capsys):
-    rc, out, _ = _loops(tmp_path, '--at', '300,100.0004,200')
+    rc, out, _ = _loops(tmp_path, '--stations-at', '300,100.0004,200')
     assert rc == 0
     # rounded to 1 mm (the CSV's precision), sorted
     assert read_detections(out).layout.positions.tolist() == [100.0, 200.0, 300.0]
@@ -87,20 +87,31 @@ def test_explicit_positions_in_any_order(tmp_path, capsys):
 
 def test_via_the_mlkm_command(tmp_path, capsys):
     out = tmp_path / 'x.csv'
-    argv = ['loops', '--input', str(NGSIM), '--at', '100,200', '--output', str(out)]
+    argv = ['loops', '--input', str(NGSIM), '--stations-at', '100,200', '--output', str(out)]
     assert cli.main(argv) == 0
     assert out.is_file() and not list(tmp_path.glob('*.yaml'))
+
+
+def test_the_old_spellings_still_work_with_a_note(tmp_path, capsys):
+    rc, out, lay = _loops(tmp_path, '--at', '100,200')
+    assert rc == 0 and lay.is_file()
+    assert capsys.readouterr().err == 'mlkm loops: note: --at is deprecated; use --stations-at\n'
+    argv = ['--input', str(NGSIM), '--stations', '2', '--output', str(tmp_path / 'b.csv')]
+    assert cli_loops.main([*argv, '--layout-out', str(tmp_path / 'b.yaml')]) == 0
+    err = capsys.readouterr().err
+    assert err == 'mlkm loops: note: --layout-out is deprecated; use --layout\n'
+    assert read_layout_file(tmp_path / 'b.yaml').layout.n_sensors == 2
 
 
 @pytest.mark.parametrize(
     ('flags', 'message'),
     [
         (['--stations', '0'], 'argument --stations: must be >= 1'),
-        (['--stations', '3', '--at', '1,2'], 'not allowed with argument'),
-        (['--at', '100,200', '--start', '50'], '--start and --end place --stations'),
-        (['--at', '100,x'], "not a number: 'x'"),
-        (['--at', '100,100.0001'], 'two stations at one position'),
-        (['--at', '5,100'], r'station\(s\) at 5 m off the road the trajectories cover'),
+        (['--stations', '3', '--stations-at', '1,2'], 'not allowed with argument'),
+        (['--stations-at', '100,200', '--start', '50'], '--start and --end place --stations'),
+        (['--stations-at', '100,x'], "not a number: 'x'"),
+        (['--stations-at', '100,100.0001'], 'two stations at one position'),
+        (['--stations-at', '5,100'], r'station\(s\) at 5 m off the road the trajectories cover'),
         (
             ['--stations', '3', '--start', '50', '--end', '5000'],
             r'at 2525, 5000 m off the road the trajectories cover \(10.78 .. 507.2 m\)',
@@ -110,7 +121,7 @@ def test_via_the_mlkm_command(tmp_path, capsys):
         (['--lanes', '0'], 'argument --lanes: must be >= 1'),
         (['--fcd-position', 'y'], 'invalid choice'),
         # no vehicle of the extract is observed from 11 m to 507 m
-        (['--at', '11,507', '--closed'], 'no vehicle is detected at every station'),
+        (['--stations-at', '11,507', '--closed'], 'no vehicle is detected at every station'),
     ],
 )
 def test_bad_flags_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, flags, message):
@@ -132,10 +143,10 @@ def test_bad_inputs_and_outputs_exit_2_and_write_nothing(tmp_path, capsys):
         (['--input', str(tmp_path / 'none.csv')], 'none.csv: No such file'),
         (['--input', str(NGSIM), '--output', str(tmp_path)], '--output is a directory'),
         (
-            ['--input', str(NGSIM), '--layout-out', str(out / 'same.csv')],
-            '--output and --layout-out name the same file',
+            ['--input', str(NGSIM), '--layout', str(out / 'same.csv')],
+            '--output and --layout name the same file',
         ),
-        (['--input', str(NGSIM), '--layout-out', str(tmp_path)], '--layout-out is a directory'),
+        (['--input', str(NGSIM), '--layout', str(tmp_path)], '--layout is a directory'),
         (['--input', str(NGSIM), '--output', str(NGSIM)], '--output is the input file'),
     ]
     for flags, message in cases:
@@ -151,7 +162,7 @@ def test_bad_inputs_and_outputs_exit_2_and_write_nothing(tmp_path, capsys):
 
 def test_a_station_nobody_crosses_is_a_warning(tmp_path, capsys):
     # 10.78 m is the first frame of the extract: no frame lies before it
-    rc, out, lay = _loops(tmp_path, '--at', '10.78,100')
+    rc, out, lay = _loops(tmp_path, '--stations-at', '10.78,100')
     assert rc == 0
     err = capsys.readouterr().err
     assert 'warning: no vehicle crosses the station(s) at 10.78 m' in err
@@ -175,7 +186,7 @@ def test_sumo_fcd_input_by_x_and_by_distance(tmp_path, capsys):
     fcd.write_text(FCD)
     for flags, at in (([], '5'), (['--fcd-position', 'distance'], '55')):
         out = tmp_path / 'fcd.csv'
-        argv = ['--input', str(fcd), '--at', at, '--output', str(out), *flags]
+        argv = ['--input', str(fcd), '--stations-at', at, '--output', str(out), *flags]
         assert cli_loops.main(argv) == 0
         d = read_detections(out).detections
         # a (id 0) crosses halfway through 0..1 s in lane 1; b (id 1) at 1.25 s in lane 0

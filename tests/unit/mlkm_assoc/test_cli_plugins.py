@@ -1,8 +1,8 @@
 """``mlkm`` finds its further subcommands through the ``mlkm.commands`` entry points.
 
 mlkm_assoc names no benchmark module: ``mlkm paper`` and ``mlkm bench`` come from
-mlkm_experiments' entry points, ``mlkm sumo`` from mlkm_sumo's, ``mlkm loops`` from
-mlkm_assoc's own.
+mlkm_experiments' entry points, ``mlkm sumo`` from mlkm_sumo's, ``mlkm loops`` and
+``mlkm plot`` from mlkm_assoc's own.
 """
 
 from __future__ import annotations
@@ -32,13 +32,13 @@ def echo(argv: list[str]) -> int:
 
 def test_installed_commands_are_listed_and_dispatched(capsys):
     names = set(cli.plugin_commands())
-    assert {'paper', 'bench', 'sumo', 'loops'} <= names, f'installed: {names}; make setup?'
+    assert {'paper', 'bench', 'sumo', 'loops', 'plot'} <= names, f'installed: {names}; make setup?'
     with pytest.raises(SystemExit) as exc:
         cli.main(['--help'])
     assert exc.value.code == 0
     out = capsys.readouterr().out
     listed = re.search(r'\{([a-z,]+)\}', out).group(1).split(',')
-    assert {'associate', 'bench', 'loops', 'paper', 'sumo'} <= set(listed)
+    assert {'associate', 'bench', 'loops', 'paper', 'plot', 'sumo'} <= set(listed)
     assert listed == sorted(listed)
     assert "reproduce the paper's experiments" in out and 'benchmarks' in out
     with pytest.raises(SystemExit):

@@ -21,7 +21,7 @@ def cache(tmp_path_factory):
 def test_cli_writes_a_csv_that_reads_back(tmp_path, cache, capsys):
     out, road = tmp_path / 'data.csv', tmp_path / 'road.json'
     argv = ['--scenario', 'highway', '--vehicles', '40', '--stations', '6', '--seed', '1',
-            '--out', str(out), '--cache-dir', cache, '--road-out', str(road)]  # fmt: skip
+            '--output', str(out), '--cache-dir', cache, '--road', str(road)]  # fmt: skip
     assert main(argv) == 0
     assert f'-> {out}' in capsys.readouterr().out
     layout, dets, rows, header = read_detections(out)
@@ -43,16 +43,18 @@ def test_cli_writes_a_csv_that_reads_back(tmp_path, cache, capsys):
     info = json.loads(road.read_text())
     assert [s['lanes'] for s in info['stations']] == [3] * 6
     assert [s['position_m'] for s in info['stations']] == pytest.approx(layout.positions)
-    # same seed, same data
+    # same seed, same data; the old spelling of --output still works, with a note
     out2 = tmp_path / 'again.csv'
-    assert main([*argv[:-4], '--out', str(out2), '--cache-dir', cache]) == 0
+    assert main([*argv[:-6], '--out', str(out2), '--cache-dir', cache]) == 0
     assert out2.read_text() == out.read_text()
+    note = 'mlkm sumo: note: --out is deprecated; use --output\n'
+    assert capsys.readouterr().err.startswith(note)
 
 
 def test_cli_duration_and_given_stations(tmp_path, cache):
     out = tmp_path / 'd.csv'
     argv = ['--scenario', 'ramps', '--duration', '120', '--stations-at', '300,900,1800',
-            '--out', str(out), '--cache-dir', cache, '--false-alarm-rate', '600']  # fmt: skip
+            '--output', str(out), '--cache-dir', cache, '--false-alarm-rate', '600']  # fmt: skip
     assert main(argv) == 0
     layout, dets, rows, _ = read_detections(out)
     assert layout.positions.tolist() == [300.0, 900.0, 1800.0]
@@ -75,7 +77,7 @@ def test_cli_duration_and_given_stations(tmp_path, cache):
 def test_cli_bad_input_exits_2_with_a_message(argv, message, tmp_path, cache, capsys):
     out = tmp_path / 'never.csv'
     extra = [] if '--vehicles' in argv else ['--vehicles', '5']
-    assert main([*argv, *extra, '--out', str(out), '--cache-dir', cache]) == 2
+    assert main([*argv, *extra, '--output', str(out), '--cache-dir', cache]) == 2
     err = capsys.readouterr().err
     last = err.strip().splitlines()[-1]  # argparse problems come after the usage line
     assert last.startswith('mlkm sumo: error: ') and message in last

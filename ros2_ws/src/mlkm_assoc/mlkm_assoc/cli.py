@@ -11,17 +11,23 @@ with a message naming the lines, exit code 2, and nothing is written; ``--skip-i
 associates the valid rows instead and writes the invalid ones with track -1 and their reason
 in a ``rejected`` column.
 
+``--layout network.yaml`` reads the rows as stations of a road network and associates them
+across its junctions (``mlkm_assoc.cli_network``).
+
 ``--stream [--lag S] [--entries X,..] [--exits X,..]`` associates as the live node does on
 an open road: the rows are pushed in stamp order through ``mlkm_core.streaming`` (any
 method; key = data row number), the committed labels are written, and the revision rate
 (first-published links changed before their commit) and commit latency are printed.
 
 Further subcommands come from the ``mlkm.commands`` entry points of the installed packages:
-``mlkm loops`` from this package (``mlkm_assoc.cli_loops``), ``mlkm sumo`` from mlkm_sumo,
-``mlkm paper`` and ``mlkm bench`` from mlkm_experiments (``mlkm_experiments.commands``).
+``mlkm loops`` (``mlkm_assoc.cli_loops``), ``mlkm simulate`` (``mlkm_assoc.cli_simulate``) and
+``mlkm plot`` (``mlkm_assoc.cli_plot``: the time-space diagram of a tracks CSV or a bag, to
+PNG) from this package, ``mlkm sumo`` from mlkm_sumo, ``mlkm paper`` and ``mlkm bench`` from
+mlkm_experiments (``mlkm_experiments.commands``).
 Each entry point ``name = module:function`` names a function that takes the arguments after
 ``mlkm <name>`` and returns the exit status; the first line of its docstring (else of its
-module's) is its line in ``mlkm --help``.
+module's) is its line in ``mlkm --help``. A Python warning raised while any subcommand runs
+(a method's ``DegradedResultWarning``) prints as one line ``mlkm <command>: warning: ...``.
 """
 
 from __future__ import annotations
@@ -31,13 +37,16 @@ import csv
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from mlkm_assoc.cli_args import finite_float, positive_int
+from mlkm_assoc.cli_network import associate as associate_on_network
+from mlkm_assoc.cli_network import load_network, needs_network
 from mlkm_assoc.cli_run import Progress, absolute, run_batch, run_stream
 from mlkm_core.bounds import OFFLINE, Bounds
+from mlkm_core.cli_args import finite_float, positive_int, seed
 from mlkm_core.csvio import (
     ENCODING,
     LANE,
@@ -87,12 +96,13 @@ def _error(message: str) -> int:
     return 2
 
 
-def _output_problem(output: Path, input_path: Path) -> str | None:
-    """Why ``output`` cannot be written, checked before any work is done; None if it can."""
+def _output_problem(output: Path, input_path: Path | None = None) -> str | None:
+    """Why ``output`` cannot be written (or would overwrite ``input_path``), checked before
+    any work is done; None if it can."""
     if output.is_dir():
         return f'{output}: --output is a directory; give a file name'
     try:
-        if output.exists() and input_path.exists() and output.samefile(input_path):
+        if input_path and output.exists() and input_path.exists() and output.samefile(input_path):
             return f'{output}: --output is the input file; choose another name'
     except OSError:
         pass
@@ -125,12 +135,24 @@ def cmd_associate(args: argparse.Namespace) -> int:
     problem = _output_problem(output, input_path)
     if problem:
         return _error(problem)
+    net = None
     try:
-        config = AssociatorConfig(
-            segment_size=args.segment_size, seed=args.seed, entries=args.entries, exits=args.exits
-        )
-        associator = make_associator(args.method, config)
-        stream = _stream_config(args) if args.stream else None
+        if args.layout is not None:
+            net, problem = load_network(args)
+            if problem:
+                return _error(problem)
+            associator, stream = None, None
+        elif needs_network(args.method):
+            return _error(needs_network(args.method))
+        else:
+            config = AssociatorConfig(
+                segment_size=args.segment_size,
+                seed=args.seed,
+                entries=args.entries,
+                exits=args.exits,
+            )
+            associator = make_associator(args.method, config)
+            stream = _stream_config(args) if args.stream else None
     except ValueError as exc:
         return _error(str(exc))
     progress = Progress(sys.stderr.isatty() if args.progress is None else args.progress)
@@ -138,7 +160,7 @@ def cmd_associate(args: argparse.Namespace) -> int:
     bar = progress.bar('reading', total=size, unit='B', scale=True)
     failure = None
     try:
-        data = read_csv(input_path, bounds, args.skip_invalid, absolute(bar))
+        data = read_csv(input_path, bounds, args.skip_invalid, absolute(bar), network=net)
     except InvalidRows as exc:
         n = len(exc.problems)
         failure = (
@@ -154,7 +176,8 @@ def cmd_associate(args: argparse.Namespace) -> int:
             bar.close()
     if failure:
         return _error(failure)
-    layout, dets = data.layout, data.detections
+    dets = data.detections
+    n_sensors = net.n_stations if net is not None else data.layout.n_sensors
     for name, like in data.unknown.items():
         if like is not None and like not in data.header:
             print(
@@ -180,7 +203,9 @@ def cmd_associate(args: argparse.Namespace) -> int:
     n_targets = args.targets or int(np.bincount(dets.sensor_index).max())
     t0 = time.perf_counter()
     try:
-        if stream is None:
+        if net is not None:
+            labels = associate_on_network(net, dets, args.method, args.seed)
+        elif stream is None:
             labels = run_batch(associator, data, n_targets, progress)
         else:
             streamed = run_stream(data, stream, args.entries, args.exits, progress)
@@ -202,8 +227,10 @@ def cmd_associate(args: argparse.Namespace) -> int:
         return _error(failure)
     n_tracks = np.unique(labels[labels >= 0]).size
     mode = f'stream, lag {stream.lag:g} s' if stream else f'{n_targets} targets'
+    if net is not None:
+        mode = f'road network of {len(net.links)} links'
     print(
-        f'{len(dets)} detections from {layout.n_sensors} sensors -> {n_tracks} tracks '
+        f'{len(dets)} detections from {n_sensors} sensors -> {n_tracks} tracks '
         f'({args.method}, {mode}, {elapsed:.1f} s) written to {args.output}'
         + (f'; {len(rejected)} invalid rows written as rejected' if rejected else '')
     )
@@ -244,16 +271,6 @@ def _print_stream(result) -> None:
         )
 
 
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not an integer: {text!r}') from None
-    if not 0 <= value < 2**32:
-        raise argparse.ArgumentTypeError('must be in [0, 2^32 - 1]')
-    return value
-
-
 def _positions(text: str) -> tuple[float, ...]:
     values = tuple(finite_float(x) for x in text.split(',') if x.strip())
     if any(v < 0 for v in values):
@@ -263,6 +280,7 @@ def _positions(text: str) -> tuple[float, ...]:
 
 def build_parser() -> argparse.ArgumentParser:
     from mlkm_core.associators import AssociatorConfig, available_methods
+    from mlkm_core.network_assoc import NETWORK_METHODS
 
     default_k = AssociatorConfig.segment_size
     parser = argparse.ArgumentParser(prog='mlkm', description=__doc__.split('\n\n')[0])
@@ -275,7 +293,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     a.add_argument('--output', required=True, help='output CSV: the input plus track_id')
     a.add_argument(
-        '--method', default='mlkm', choices=available_methods(), help='associator (default: mlkm)'
+        '--method',
+        default='mlkm',
+        choices=sorted({*available_methods(), *NETWORK_METHODS}),
+        help='associator (default: mlkm; with --layout: assignment or gmlkm)',
     )
     a.add_argument(
         '--segment-size',
@@ -290,7 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
         help='number of targets (default: the largest per-sensor count)',
     )
     a.add_argument(
-        '--seed', type=_seed, default=0, help='random seed of the method, 0 to 2^32-1 (default: 0)'
+        '--seed', type=seed, default=0, help='random seed of the method, 0 to 2^32-1 (default: 0)'
     )
     bounds = OFFLINE
     for flag, value, what in (
@@ -336,6 +357,12 @@ def build_parser() -> argparse.ArgumentParser:
             help=f'positions [m] of {what} between stations, comma-separated (an open road: '
             'the batch associators and --stream use them)',
         )
+    a.add_argument(
+        '--layout',
+        default=None,
+        help='a network layout file (YAML, links: form): the rows are stations of that road '
+        'network, associated across its junctions (--method assignment or gmlkm)',
+    )
     a.set_defaults(func=cmd_associate)
     for name, entry in sorted(plugin_commands().items()):
         # their own parsers read their arguments (and --help): main() hands argv over
@@ -366,14 +393,35 @@ def _plugin_help(entry) -> str:
     return line.split(': ', 1)[1] if line.startswith(f'``mlkm {entry.name}``: ') else line
 
 
+def one_line_warnings(prog: str):
+    """A ``warnings.showwarning`` that prints ``<prog>: warning: <message>`` as one line on
+    stderr: what went wrong, not where in the installed sources."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        text = ' '.join(str(message).split())
+        kind = '' if issubclass(category, UserWarning) else f'{category.__name__}: '
+        try:
+            print(f'{prog}: warning: {kind}{text}', file=file or sys.stderr)
+        except OSError:  # stderr closed: a warning must not fail the command
+            pass
+
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] not in BUILTIN:
-        entry = plugin_commands().get(argv[0])
-        if entry is not None:
-            return int(entry.load()(argv[1:]) or 0)
-    args = build_parser().parse_args(argv)
-    return int(args.func(args))
+    command = argv[0] if argv and not argv[0].startswith('-') else ''
+    previous = warnings.showwarning
+    warnings.showwarning = one_line_warnings(f'mlkm {command}'.strip())
+    try:
+        if argv and argv[0] not in BUILTIN:
+            entry = plugin_commands().get(argv[0])
+            if entry is not None:
+                return int(entry.load()(argv[1:]) or 0)
+        args = build_parser().parse_args(argv)
+        return int(args.func(args))
+    finally:
+        warnings.showwarning = previous
 
 
 if __name__ == '__main__':

@@ -1,15 +1,15 @@
 """``mlkm loops``: place virtual loop detectors on vehicle trajectories and write the detections.
 
-``mlkm loops --input TRAJ [--stations N | --at X,Y,...] [--start M] [--end M] [--closed]
-[--lanes N] [--fcd-position x|distance] --output DETECTIONS.csv [--layout-out LAYOUT.yaml]``
+``mlkm loops --input TRAJ [--stations N | --stations-at X,Y,...] [--start M] [--end M] [--closed]
+[--lanes N] [--fcd-position x|distance] --output DETECTIONS.csv [--layout LAYOUT.yaml]``
 
 reads trajectories (trajectory CSV, NGSIM, SUMO FCD: ``mlkm_core.trajectories``), reports what
 a loop at each station would have seen (``mlkm_core.loops``: the crossing time, speed, lane
 and length of every vehicle, the vehicle id as ground truth) and writes it as the detections
-CSV that ``mlkm associate --input`` reads; ``--layout-out`` also writes the road as a layout
+CSV that ``mlkm associate --input`` reads; ``--layout`` also writes the road as a layout
 file (``mlkm_core.layout_file``) for the log source node. Stations are ``--stations`` evenly
 spaced from ``--start`` to ``--end`` (default: the covered span of the data, 5 % trimmed at
-each end) or the positions of ``--at``; positions are rounded to 1 mm, the precision the
+each end) or the positions of ``--stations-at``; positions are rounded to 1 mm, the precision the
 detections CSV has. ``--closed`` keeps only the vehicles detected at every station.
 
 Returns 0, or 2 with one line ``mlkm loops: error: ...`` on bad input (an unreadable
@@ -27,14 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from mlkm_assoc.cli import _output_problem
-from mlkm_assoc.cli_args import finite_float, positive_int
+from mlkm_core.cli_args import Refused, finite_float, positive_int, refusing, renamed_option
 from mlkm_core.csvout import write_detections
 from mlkm_core.layout_file import LayoutFileError, RoadLayout, write_layout_file
 from mlkm_core.loops import covered_span, even_positions, virtual_loops
 from mlkm_core.trajectories import TrajectoryError, read_trajectories
 
 PROG = 'mlkm loops'
-#: Stations when neither --stations nor --at is given [-].
+#: Stations when neither --stations nor --stations-at is given [-].
 DEFAULT_STATIONS = 10
 #: Decimals of a station position: the detections CSV's position_m (1 mm).
 POSITION_DECIMALS = 3
@@ -44,11 +44,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse that reports a usage error as this command's one-line error (exit 2)."""
 
     def error(self, message: str):
-        raise _Refused(message)
-
-
-class _Refused(Exception):
-    """Bad input: the one-line message of ``mlkm loops: error:``."""
+        raise Refused(message)
 
 
 def _positions(text: str) -> list[float]:
@@ -81,8 +77,14 @@ def build_parser() -> argparse.ArgumentParser:
         help=f'this many stations evenly spaced from --start to --end (default: '
         f'{DEFAULT_STATIONS})',
     )
-    where.add_argument(
-        '--at', type=_positions, metavar='X,Y,...', help='station positions [m], e.g. 50,150,250'
+    renamed_option(
+        p,
+        '--stations-at',
+        '--at',
+        group=where,
+        type=_positions,
+        metavar='X,Y,...',
+        help='station positions [m], e.g. 50,150,250',
     )
     p.add_argument(
         '--start',
@@ -116,49 +118,46 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         '--output', required=True, metavar='DETECTIONS.csv', help='detections CSV to write'
     )
-    p.add_argument(
-        '--layout-out', metavar='LAYOUT.yaml', help='also write the road as a layout file (YAML)'
+    renamed_option(
+        p,
+        '--layout',
+        '--layout-out',
+        metavar='LAYOUT.yaml',
+        help='also write the road as a layout file (YAML)',
     )
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     """place virtual loop detectors on vehicle trajectories (NGSIM, SUMO FCD)"""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        return _run(argv)
-    except _Refused as exc:
-        print(f'{PROG}: error: {exc}', file=sys.stderr)
-        return 2
+    return refusing(PROG, _run, argv)
 
 
 def _run(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
-    if args.at is not None and (args.start is not None or args.end is not None):
-        raise _Refused('--start and --end place --stations; --at gives the positions itself')
+    if args.stations_at is not None and (args.start is not None or args.end is not None):
+        raise Refused('--start and --end place --stations; --stations-at gives the positions')
     input_path, output = Path(args.input), Path(args.output)
-    outputs = [output] + ([Path(args.layout_out)] if args.layout_out else [])
+    outputs = [output] + ([Path(args.layout)] if args.layout else [])
     if len(outputs) == 2 and outputs[0].resolve() == outputs[1].resolve():
-        raise _Refused('--output and --layout-out name the same file')
-    for flag, out in zip(('--output', '--layout-out'), outputs, strict=False):
+        raise Refused('--output and --layout name the same file')
+    for flag, out in zip(('--output', '--layout'), outputs, strict=False):
         problem = _output_problem(out, input_path)
         if problem:
-            raise _Refused(problem.replace('--output', flag))
+            raise Refused(problem.replace('--output', flag))
     try:
         traj = read_trajectories(input_path, args.lanes, args.fcd_position)
     except TrajectoryError as exc:
-        raise _Refused(str(exc)) from None
+        raise Refused(str(exc)) from None
     positions = _stations(args, traj)
     try:
         loops = virtual_loops(traj, positions, closed=args.closed)
     except ValueError as exc:
-        raise _Refused(f'{input_path}: {exc}') from None
+        raise Refused(f'{input_path}: {exc}') from None
     det, layout = loops.dataset.detections, loops.dataset.layout
     if len(det) == 0:
         where = 'every station (--closed)' if args.closed else 'any station'
-        raise _Refused(
-            f'{input_path}: no vehicle is detected at {where} of {_listed(positions)} m'
-        )
+        raise Refused(f'{input_path}: no vehicle is detected at {where} of {_listed(positions)} m')
     silent = np.setdiff1d(np.arange(layout.n_sensors), det.sensor_index)
     if silent.size:
         print(
@@ -176,19 +175,19 @@ def _run(argv: list[str]) -> int:
     try:
         write_detections(output, layout, det)
     except OSError as exc:
-        raise _Refused(f'{output}: cannot write: {exc.strerror or exc}') from None
-    if args.layout_out:
+        raise Refused(f'{output}: cannot write: {exc.strerror or exc}') from None
+    if args.layout:
         try:
-            write_layout_file(args.layout_out, road, comment)
+            write_layout_file(args.layout, road, comment)
         except (OSError, LayoutFileError) as exc:
             output.unlink(missing_ok=True)  # all or nothing: no CSV without its layout
             reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
-            raise _Refused(f'{args.layout_out}: cannot write: {reason}') from None
+            raise Refused(f'{args.layout}: cannot write: {reason}') from None
     print(
         f'{len(det)} detections of {loops.vehicles_detected} vehicles ({loops.vehicles_seen} '
         f'seen; {variant} road) at {layout.n_sensors} stations, {positions[0]:g} .. '
         f'{positions[-1]:g} m, {loops.lanes or "unknown"} lanes, written to {output}'
-        + (f' and {args.layout_out}' if args.layout_out else '')
+        + (f' and {args.layout}' if args.layout else '')
     )
     return 0
 
@@ -196,8 +195,8 @@ def _run(argv: list[str]) -> int:
 def _stations(args: argparse.Namespace, traj) -> np.ndarray:
     """The station positions of the flags [m], rounded to 1 mm, checked against the road."""
     lo, hi = float(traj.position.min()), float(traj.position.max())
-    if args.at is not None:
-        positions = np.array(sorted(args.at))
+    if args.stations_at is not None:
+        positions = np.array(sorted(args.stations_at))
     else:
         start, end = covered_span(traj)
         start = start if args.start is None else args.start
@@ -205,13 +204,13 @@ def _stations(args: argparse.Namespace, traj) -> np.ndarray:
         try:
             positions = even_positions(args.stations or DEFAULT_STATIONS, start, end)
         except ValueError as exc:
-            raise _Refused(f'--start/--end: {exc}') from None
+            raise Refused(f'--start/--end: {exc}') from None
     positions = np.round(positions, POSITION_DECIMALS)
     if np.any(np.diff(positions) <= 0):
-        raise _Refused(f'two stations at one position (to 1 mm): {_listed(positions)} m')
+        raise Refused(f'two stations at one position (to 1 mm): {_listed(positions)} m')
     off = positions[(positions < max(lo, 0.0)) | (positions > hi)]
     if off.size:
-        raise _Refused(
+        raise Refused(
             f'station(s) at {_listed(off)} m off the road the trajectories cover '
             f'({max(lo, 0.0):g} .. {hi:g} m)'
         )

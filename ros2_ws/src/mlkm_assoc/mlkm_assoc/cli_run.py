@@ -1,7 +1,10 @@
 """Running an associator over a CSV's detections for ``mlkm associate``: batch or stream.
 
 ``run_batch`` calls the method once on every valid detection (segment by segment where the
-method has a session, to show progress). ``run_stream`` pushes the detections in stamp order
+method has a session, to show progress). With ``--progress`` a method without a session
+reports the fraction it has done through ``mlkm_core.progress``; the bar shows it with the
+time left at the average pace so far (only the elapsed time for a method that reports
+nothing: the K-means baselines and the DNN). ``run_stream`` pushes the detections in stamp order
 through ``mlkm_core.streaming.StreamTracker`` (key = the data row number), flushes at the end
 and returns the committed labels with what the stream measured (revision rate, commit
 latency in stamp time).
@@ -11,6 +14,7 @@ from __future__ import annotations
 
 import sys
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,23 +78,87 @@ def run_batch(associator, data: CsvDetections, n_targets: int, progress: Progres
         out = np.full(len(dets), -1, np.int64)
         out[np.concatenate(order)] = labels
         return out
-    bar = progress.bar(f'associating ({associator.name})', unit='s')
-    if bar is None:
+    if not progress.enabled:
         return associator.associate(layout, dets, n_targets)
+    from mlkm_core.progress import reporting
+
+    bar = FractionBar(f'associating ({associator.name})')
     done = threading.Event()
 
-    def tick() -> None:  # the method reports nothing: show the elapsed time
+    def tick() -> None:  # the elapsed time moves between the method's reports
         while not done.wait(1.0):
-            bar.refresh()
+            bar.show()
 
     ticker = threading.Thread(target=tick, daemon=True)
     ticker.start()
     try:
-        return associator.associate(layout, dets, n_targets)
+        with reporting(bar.update):
+            return associator.associate(layout, dets, n_targets)
     finally:
         done.set()
         ticker.join()
         bar.close()
+
+
+def clock(seconds: float) -> str:
+    """``mm:ss``, or ``h:mm:ss`` from an hour on."""
+    s = max(int(round(seconds)), 0)
+    h, m = divmod(s, 3600)
+    m, s = divmod(m, 60)
+    return f'{h}:{m:02d}:{s:02d}' if h else f'{m:02d}:{s:02d}'
+
+
+def remaining(fraction: float, elapsed: float) -> float | None:
+    """Seconds left if the rest goes at the average pace so far [s]; None before any
+    progress (nothing to extrapolate from)."""
+    if fraction <= 0:
+        return None
+    return elapsed * (1.0 - min(fraction, 1.0)) / fraction
+
+
+def fraction_line(desc: str, fraction: float | None, elapsed: float, width: int = 20) -> str:
+    """One line of a bar: the fraction done, the elapsed time and the time left; only the
+    elapsed time while the method has reported nothing (``fraction`` None or 0)."""
+    if not fraction:
+        return f'{desc}: {clock(elapsed)} elapsed'
+    fraction = min(fraction, 1.0)
+    filled = int(fraction * width)
+    left = remaining(fraction, elapsed)
+    return (
+        f'{desc}: {100 * fraction:3.0f}%|{"#" * filled}{" " * (width - filled)}| '
+        f'{clock(elapsed)} elapsed, {clock(left)} left'
+    )
+
+
+class FractionBar:
+    """A bar on stderr driven by the fraction done (``mlkm_core.progress``), redrawn in place;
+    ``now`` (the clock) and ``file`` are there for the tests."""
+
+    def __init__(self, desc: str, file=None, now=time.monotonic) -> None:
+        self.desc = desc
+        self.file = file or sys.stderr
+        self.now = now
+        self.start = now()
+        self.fraction = 0.0
+        self.width = 0  # of the last line drawn, to clear it
+        self._lock = threading.Lock()
+        self.show()
+
+    def update(self, fraction: float) -> None:
+        self.fraction = fraction
+        self.show()
+
+    def show(self) -> None:
+        with self._lock:
+            line = fraction_line(self.desc, self.fraction, self.now() - self.start)
+            self.file.write('\r' + line.ljust(self.width))
+            self.file.flush()
+            self.width = len(line)
+
+    def close(self) -> None:
+        with self._lock:  # leave no bar behind, as the tqdm bars (leave=False)
+            self.file.write('\r' + ' ' * self.width + '\r')
+            self.file.flush()
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,8 @@ from pathlib import Path
 import numpy as np
 
 from mlkm_core.bounds import OFFLINE, Bounds
+from mlkm_core.network import RoadNetwork
+from mlkm_core.network_csv import position_problem, station_indexes
 from mlkm_core.types import UNKNOWN_LANE, Detections, Layout, duplicate_key
 
 REQUIRED = ('sensor_id', 'position_m', 'stamp_s', 'velocity_mps')
@@ -92,13 +94,14 @@ class CsvDetections:
 
     path: Path
     header: list[str]
-    layout: Layout
+    layout: Layout | None  # None on a road network (its stations are the network's)
     detections: Detections  # the valid rows, in file order
     row_detection: np.ndarray  # per data row: its index in ``detections``, or -1 if invalid
     problems: dict[int, RowProblem] = field(default_factory=dict)  # data row -> problem
     signature: tuple[int, int] = (0, 0)  # (size, mtime_ns) of the file when read
     # other columns (copied to the output) -> the known column each resembles, or None
     unknown: dict[str, str | None] = field(default_factory=dict)
+    track: np.ndarray | None = None  # tracks=True: per detection, its track_id (-1 = none)
 
     @property
     def n_rows(self) -> int:
@@ -194,7 +197,7 @@ def _velocity_message(reason: str, v: float, bounds: Bounds) -> str:
     return f'velocity_mps must be finite, got {v!r}'
 
 
-def _read_header(rows: _Rows) -> list[str]:
+def _read_header(rows: _Rows, tracks: bool = False) -> list[str]:
     first = rows.next()
     expected = f'{",".join(REQUIRED)}[,{TRUTH}][,{LANE}][,{LENGTH}]'
     if first is None:
@@ -213,7 +216,7 @@ def _read_header(rows: _Rows) -> list[str]:
         )
     if len(set(header)) != len(header):
         raise InputError(f'{rows.path}: line 1: duplicate column names')
-    if TRACK in header:
+    if TRACK in header and not tracks:
         raise InputError(f'{rows.path}: line 1: input already has a {TRACK} column')
     return header
 
@@ -233,18 +236,32 @@ def read_detections(
     bounds: Bounds | None = None,
     skip_invalid: bool = False,
     progress: Progress | None = None,
+    tracks: bool = False,
+    network: RoadNetwork | None = None,
 ) -> CsvDetections:
     """Parse a detections CSV; raise InputError (structure) or InvalidRows (rows).
 
+    With ``network`` the rows' stations are that road network's (``mlkm_core.network_csv``):
+    ``Detections.sensor_index`` indexes its station arrays and ``CsvDetections.layout`` is
+    None; without it the positions of the file make a single road.
+
     With ``skip_invalid`` the invalid rows are returned in ``problems`` instead, as long as
-    at least one row is valid.
+    at least one row is valid. With ``tracks`` the file is a tracks CSV (what
+    :func:`write_tracks` writes): its ``track_id`` column, required, is read into
+    ``CsvDetections.track``; a value that is not an integer >= -1 is an InputError.
     """
     path = Path(path)
     bounds = bounds or OFFLINE
     rows = _Rows(path)
     try:
         signature = _signature(path)
-        header = _read_header(rows)
+        header = _read_header(rows, tracks)
+        if tracks and TRACK not in header:
+            raise InputError(
+                f'{path}: line 1: no {TRACK} column: not a tracks CSV (mlkm associate '
+                '--output writes one)'
+            )
+        i_track = header.index(TRACK) if tracks else None
         width = len(header)
         i_sid, i_pos = header.index('sensor_id'), header.index('position_m')
         i_t, i_v = header.index('stamp_s'), header.index('velocity_mps')
@@ -252,6 +269,7 @@ def read_detections(
         i_lane = header.index(LANE) if LANE in header else None
         i_len = header.index(LENGTH) if LENGTH in header else None
         sensor, stamp, velocity, target, lane, length, line_of = [], [], [], [], [], [], []
+        track: list[int] = []
         tie: list[float] = []  # the last element of each valid row's duplicate_key
         row_detection: list[int] = []
         problems: dict[int, RowProblem] = {}
@@ -264,6 +282,11 @@ def read_detections(
                 progress(rows.bytes_read)
             if len(row) != width:
                 raise InputError(f'{path}: line {line}: expected {width} fields, got {len(row)}')
+            if i_track is not None:
+                try:
+                    track.append(_int(row[i_track], TRACK, -1))
+                except _Bad as bad:
+                    raise InputError(f'{path}: line {line}: {bad.message}') from None
             try:
                 sid = _int(row[i_sid], 'sensor_id', 0)
                 pos = _float(row[i_pos], 'position_m')
@@ -335,20 +358,32 @@ def read_detections(
     keep = np.flatnonzero(det_of_row >= 0)
     valid_dets = det_of_row[keep]
     det_of_row[keep] = np.arange(keep.size)
-    layout = _layout(path, position_of) if position_of else None
+    layout = _layout(path, position_of) if position_of and network is None else None
+    misplaced = None if network is None else position_problem(path, network, position_of)
+    if misplaced:
+        raise InputError(misplaced)
     if problems and (not skip_invalid or not keep.size):
         raise InvalidRows(path, [problems[k] for k in sorted(problems)])
     ids = np.array(sensor, np.int64)[valid_dets]
     dets = Detections(
-        _index(layout, ids),
+        _index(layout, ids) if network is None else station_indexes(network, ids),
         np.array(stamp)[valid_dets],
         np.array(velocity)[valid_dets],
         np.array(target, np.int64)[valid_dets] if i_truth is not None else None,
         np.array(lane, np.int64)[valid_dets] if i_lane is not None else None,
         np.array(length)[valid_dets] if i_len is not None else None,
     )
+    labels = np.array(track, np.int64)[row_of[valid_dets]] if tracks else None
     return CsvDetections(
-        path, header, layout, dets, det_of_row, problems, signature, _unknown_columns(header)
+        path,
+        header,
+        layout,
+        dets,
+        det_of_row,
+        problems,
+        signature,
+        _unknown_columns(header),
+        labels,
     )
 
 
@@ -377,7 +412,8 @@ def _layout(path: Path, position_of: dict[int, tuple[float, int]]) -> Layout:
     if dup.size:
         a, b = int(ids[dup[0]]), int(ids[dup[0] + 1])
         raise InputError(
-            f'{path}: line {position_of[b][1]}: sensors {a} and {b} share position_m {pos[dup[0]]}'
+            f'{path}: line {position_of[b][1]}: sensors {a} and {b} share position_m '
+            f'{pos[dup[0]]} (stations of a road network: give its layout file, --layout)'
         )
     return Layout(float(pos[-1]) + 1.0, pos, ids)
 

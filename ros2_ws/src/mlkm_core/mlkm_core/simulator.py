@@ -272,23 +272,28 @@ def simulate_episodes(
     Episode 0 is ``simulate(config, seed)`` unchanged; episode k >= 1 has its own traffic and
     is shifted so that it starts ``gap`` seconds after episode k-1 ends (see ``time_window``).
     """
+    return list(iter_episodes(config, seed, n_episodes, gap))
+
+
+def iter_episodes(
+    config: SimConfig, seed: int, n_episodes: int, gap: float = 10.0
+) -> Iterator[Dataset]:
+    """The episodes of ``simulate_episodes`` one at a time (a long run in constant memory)."""
     if n_episodes < 0:
         raise ValueError('n_episodes must be >= 0')
     if gap < 0:
         raise ValueError('gap must be >= 0')
-    out: list[Dataset] = []
     if n_episodes == 0:
-        return out
-    first = simulate(config, seed)
-    out.append(first)
-    layout = first.layout
+        return
+    prev = simulate(config, seed)
+    yield prev
+    layout = prev.layout
     for k in range(1, n_episodes):
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), k]))
         ep = _episode(config, layout, rng)
         start = time_window(ep)[0]
-        prev_end = time_window(out[-1])[1]
-        out.append(shift(ep, prev_end + gap - start))
-    return out
+        prev = shift(ep, time_window(prev)[1] + gap - start)
+        yield prev
 
 
 # --- an endless road (continuous source) ----------------------------------------------------

@@ -18,7 +18,7 @@ def paper(argv: list[str]) -> int:
     from mlkm_experiments import paper as experiments
 
     return experiments.main_args(
-        args.datasets, args.out, args.jobs, args.dnn_datasets, args.segment_size
+        args.datasets, args.output, args.jobs, args.dnn_datasets, args.segment_size
     )
 
 
@@ -29,35 +29,31 @@ def bench(argv: list[str]) -> int:
     return int(main(argv) or 0)
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError('must be >= 1')
-    return value
-
-
 def paper_parser() -> argparse.ArgumentParser:
     from mlkm_core.associators import AssociatorConfig
+    from mlkm_core.cli_args import positive_int, renamed_option
 
     default_k = AssociatorConfig.segment_size
     p = argparse.ArgumentParser(prog='mlkm paper', description=paper.__doc__)
     p.add_argument(
         '--datasets',
-        type=_positive,
+        type=positive_int,
         default=100,
         help='seeded datasets per configuration (default: 100)',
     )
     p.add_argument(
         '--dnn-datasets',
-        type=_positive,
+        type=positive_int,
         default=None,
         help='datasets per DNN split (default: min(datasets, 10))',
     )
-    p.add_argument('--out', default='results/paper', help='output directory')
-    p.add_argument('--jobs', type=_positive, default=2, help='worker processes (default: 2)')
+    renamed_option(
+        p, '--output', '--out', default='results/paper', help='output directory (results/paper)'
+    )
+    p.add_argument('--jobs', type=positive_int, default=2, help='worker processes (default: 2)')
     p.add_argument(
         '--segment-size',
-        type=_positive,
+        type=positive_int,
         default=default_k,
         help=f'MLKM segment size K (default: {default_k})',
     )
