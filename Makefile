@@ -20,7 +20,7 @@ help:
 	@echo '  experiments    the paper'"'"'s experiments into results/paper/'
 	@echo '  replay BAG=<dir>  replay a bag into fresh nodes, print accuracy (default bags/sample)'
 	@echo '  bench          benchmarks into results/bench/ (never part of make test)'
-	@echo '  clean          remove the colcon build (ros2_ws/build, install, log)'
+	@echo '  clean          remove the colcon build (ros2_ws/build, install, log; build/ros2_tools)'
 
 setup:
 	@bash scripts/setup.sh
@@ -46,13 +46,13 @@ lint:
 	@bash scripts/lint.sh
 
 experiments: setup
-	@$(ENV) mlkm paper --out results/paper
+	@$(ENV) mlkm paper --output results/paper
 
 replay: setup
 	@$(ENV) python scripts/replay.py '$(BAG)'
 
 bench: setup
-	@$(ENV) mlkm bench --out results/bench
+	@$(ENV) mlkm bench --output results/bench
 
 clean:
-	rm -rf ros2_ws/build ros2_ws/install ros2_ws/log
+	rm -rf ros2_ws/build ros2_ws/install ros2_ws/log build/ros2_tools

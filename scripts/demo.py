@@ -6,7 +6,8 @@ Starts, as separate processes (what a user starts in separate terminals):
   road_sensors sensor_sim (a few episodes of the paper's Simulation 2: 50 targets, 20 sensors,
   real_time_factor 0),
 on loopback DDS in a ROS domain of its own (or $ROS_DOMAIN_ID). Prints the accuracy of each
-episode and the mean (from /mlkm/score), leaves the bag under bags/, stops every process and
+episode and the mean (from /mlkm/score), leaves the bag under bags/ with its time-space
+diagram beside it (<bag>_timespace.png, as `mlkm plot` draws it), stops every process and
 exits 0 (nonzero when something failed). Logs go to <bag>/../logs/<bag name>/.
 
 Usage: python scripts/demo.py [--episodes N] [--seed S] [--method M] [--bag-dir DIR]
@@ -19,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+from mlkm_assoc.timespace_plot import plot_beside_bag
 from mlkm_ros.processes import (
     Graph,
     ScoreCollector,
@@ -27,6 +29,7 @@ from mlkm_ros.processes import (
     replay_hint,
     start_association,
 )
+from mlkm_ros.qos import RECORD_EXCLUDE_REGEX
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -55,7 +58,7 @@ def recorder_args(bag_dir: Path) -> list[str]:
         '-p',
         f'output:={bag_dir}',
         '-p',
-        'exclude_regex:=^/(rosout|parameter_events)$',
+        f'exclude_regex:={RECORD_EXCLUDE_REGEX}',
     ]
 
 
@@ -126,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     )
     print(replay_hint(bag_dir, ROOT))
+    print(plot_beside_bag(bag_dir))
     print(f'demo: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
 

@@ -12,7 +12,8 @@
    on loopback DDS in a ROS domain of its own (or $ROS_DOMAIN_ID).
 
 Prints the live accuracy (from /mlkm/score) beside the offline one (the same method on the
-same file; they are equal), leaves the bag under bags/, stops every process and exits 0
+same file; they are equal), leaves the bag under bags/ with its time-space diagram beside
+it (<bag>_timespace.png, as `mlkm plot` draws it), stops every process and exits 0
 (nonzero when something failed). The log, its layout file and the node logs go to
 <bag>/../logs/<bag name>/.
 
@@ -33,6 +34,7 @@ import sys
 import time
 from pathlib import Path
 
+from mlkm_assoc.timespace_plot import plot_beside_bag
 from mlkm_ros.processes import (
     Graph,
     ScoreCollector,
@@ -94,7 +96,7 @@ def build_log(args: argparse.Namespace, log: Path, layout: Path) -> str:
         *('--input', str(args.input), '--stations', str(args.stations)),
         *('--start', f'{args.start:g}', '--end', f'{args.end:g}'),
         *([] if args.open else ['--closed']),
-        *('--output', str(log), '--layout-out', str(layout)),
+        *('--output', str(log), '--layout', str(layout)),
     )
     return run.stdout.strip()
 
@@ -179,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         f'{accuracy:.4f} ({correct}/{total}); live {"equals" if same else "DIFFERS FROM"} it'
     )
     print(replay_hint(bag_dir, ROOT))
+    print(plot_beside_bag(bag_dir))
     print(f'demo-real: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
 

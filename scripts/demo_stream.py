@@ -9,7 +9,8 @@ Starts, as separate processes (what a user starts in separate terminals):
 on loopback DDS in a ROS domain of its own (or $ROS_DOMAIN_ID). When the source is done the
 association node flushes the quiet road (after ``--lag`` seconds), the scorer scores the
 last window; the script prints every window's accuracy and revision rate with the rolling
-(cumulative) figures, leaves the bag under bags/, stops every process and exits 0 (nonzero
+(cumulative) figures, leaves the bag under bags/ with its time-space diagram beside it
+(<bag>_timespace.png, as `mlkm plot` draws it), stops every process and exits 0 (nonzero
 when something failed). Logs go to <bag>/../logs/<bag name>/.
 
 Usage: python scripts/demo_stream.py [--duration S] [--stations N] [--seed S] [--method M]
@@ -24,7 +25,9 @@ import sys
 import time
 from pathlib import Path
 
+from mlkm_assoc.timespace_plot import plot_beside_bag
 from mlkm_ros.processes import Graph, ScoreCollector, domain, replay_hint, start_association
+from mlkm_ros.qos import RECORD_EXCLUDE_REGEX
 
 ROOT = Path(__file__).resolve().parents[1]
 NS_PER_S = 1_000_000_000
@@ -56,7 +59,7 @@ def recorder_args(bag_dir: Path) -> list[str]:
         '-p',
         f'output:={bag_dir}',
         '-p',
-        'exclude_regex:=^/(rosout|parameter_events)$',
+        f'exclude_regex:={RECORD_EXCLUDE_REGEX}',
     ]
 
 
@@ -250,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     )
     print(replay_hint(bag_dir, ROOT))
+    print(plot_beside_bag(bag_dir))
     print(f'demo-stream: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
 

@@ -6,6 +6,8 @@ scores or diagnostics) with ``rosbag_mcap bag_player`` into a new ``association_
 ``scorer_node``, each a separate process on loopback DDS in a ROS domain of its own (or
 $ROS_DOMAIN_ID), and prints the accuracy of each episode and the mean. When the bag also
 holds the scores of the run that recorded it, they are compared: a replay reproduces them.
+The replayed tracks are drawn as a time-space diagram beside the bag,
+``<bag>_replay_timespace.png`` (``mlkm plot``; the bag's layout and ground truth).
 
 A bag of an open road (no EpisodeInfo in it, e.g. from ``make demo-stream``) is replayed into
 nodes in stream mode: the script prints the score of every window with the rolling accuracy
@@ -29,12 +31,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from mlkm_assoc.timespace_plot import plot_beside_bag
 from mlkm_ros.processes import Graph, ScoreCollector, domain, format_scores, start_association
+from mlkm_ros.qos import REPLAY_INCLUDE_REGEX
 
 EXIT_DAMAGED = 3  # as bag_player: the readable part of a damaged bag was replayed
-
-#: Topics replayed: the sensors' side of the graph only.
-PLAY_REGEX = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detections)$'
 
 
 def recorded_episodes(bag: Path) -> tuple[int, dict[int, float], list[str]]:
@@ -140,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
             f'ROS_DOMAIN_ID={domain_id}; logs in {log_dir}'
         )
         collector = ScoreCollector(domain_id)
+        tracks = replayed_tracks(collector)
         graph = Graph(domain_id, log_dir)
         try:
             # No time limit on the start: a busy machine only makes it slower; a node that
@@ -162,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         codes = graph.stop_all()
         collector.close()
     print(format_scores(collector.scores, f'\nreplayed association ({method}):'))
+    print(plot_beside_bag(bag, tracks))
     if damage:
         print(
             'recorded run: not compared, the bag is damaged (messages are missing, so the '
@@ -218,6 +221,7 @@ def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: lis
             f'window {window:g} s, ROS_DOMAIN_ID={domain_id}; logs in {log_dir}'
         )
         collector = ScoreCollector(domain_id, diagnostics=True)
+        tracks = replayed_tracks(collector)
         graph = Graph(domain_id, log_dir)
         try:
             start_stream_graph(graph, collector, method, args.lag, window, timeout=math.inf)
@@ -240,6 +244,7 @@ def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: lis
         codes = graph.stop_all()
         collector.close()
     print(format_stream_scores(collector.scores, f'\nreplayed stream association ({method}):'))
+    print(plot_beside_bag(bag, tracks))
     if damage:
         print('recorded run: not compared, the bag is damaged (messages are missing)')
         print(f'replay: done in {time.monotonic() - t0:.1f} s with a DAMAGED bag; {codes}')
@@ -263,6 +268,17 @@ def replay_stream(bag: Path, args: argparse.Namespace, scores: dict, damage: lis
         )
     print(f'replay: done in {time.monotonic() - t0:.1f} s; exit codes {codes}')
     return 0
+
+
+def replayed_tracks(collector: ScoreCollector) -> list:
+    """The TrackArray messages the replayed association node publishes, collected while
+    ``collector`` spins, for the time-space diagram of the replay."""
+    from mlkm_ros import qos
+    from road_sensor_msgs.msg import TrackArray
+
+    tracks: list = []
+    collector.node.create_subscription(TrackArray, qos.TRACKS_TOPIC, tracks.append, qos.TRACKS_QOS)
+    return tracks
 
 
 def _recorded_stream_settings(bag: Path) -> dict[str, str]:
@@ -289,7 +305,7 @@ def _player_args(bag: Path, args: argparse.Namespace) -> list[str]:
         '-p',
         f'rate:={args.rate}',
         '-p',
-        f'include_regex:={PLAY_REGEX}',
+        f'include_regex:={REPLAY_INCLUDE_REGEX}',
         '-p',
         'wait_for_subscribers:=1',
         '-p',

@@ -4,7 +4,10 @@
 #   1. find CPython 3.12 and create .venv (if missing);
 #   2. pip install requirements.txt (skipped when .venv's stamp matches its hash);
 #   3. repair the ROS wheels' exported CMake include paths (scripts/fix_cmake_paths.py);
-#   4. colcon build ros2_ws (skipped when nothing under ros2_ws/src changed).
+#   4. tests only: the upstream ros2cli and launch tools from ../shared/vendor into
+#      build/ros2_tools (skipped when that folder is absent, when ROS comes from an existing
+#      install that has them, or when the tarballs did not change); see scripts/ros2_tools.sh;
+#   5. colcon build ros2_ws (skipped when nothing under ros2_ws/src changed).
 #
 # Two ways to get ROS 2 Jazzy:
 #   - default: the PyPI wheels, installed into .venv, which is then the ROS underlay;
@@ -148,12 +151,65 @@ if [[ -z $UNDERLAY ]]; then
   "$VPY" "$ROOT/scripts/fix_cmake_paths.py" "$VENV" | sed 's/^/setup: /'
 fi
 
-# --- 4. colcon build -------------------------------------------------------------------------------
 "$VPY" -c 'import colcon_core' 2>/dev/null \
   || die "colcon is not importable by $VPY (with /opt/ros/jazzy: apt install \
 python3-colcon-common-extensions)"
 # colcon run by the venv's Python, so that the packages' executables get it as interpreter.
 COLCON=("$VPY" -c 'import sys; from colcon_core.command import main; sys.exit(main())')
+
+# --- 4. tests only: the real ros2 command-line tools -----------------------------------------------
+# `ros2 launch`, `ros2 node/topic/param/interface` are not on PyPI. The tests check the product
+# against them: the upstream Jazzy sources in ../shared/vendor (MLKM_ROS2_VENDOR=<dir> to point
+# elsewhere) are installed into build/ros2_tools, never into .venv, and only the tests put them
+# on the paths (scripts/ros2_tools.sh). The product runs without them.
+VENDOR=${MLKM_ROS2_VENDOR:-$ROOT/../shared/vendor}
+TOOLS=$ROOT/build/ros2_tools
+if [[ -n $UNDERLAY ]]; then
+  log "ros2 tools: from $UNDERLAY"
+elif ! compgen -G "$VENDOR/*.tar.gz" >/dev/null; then
+  log "ros2 tools: no $VENDOR; the tests that need ros2 launch and ros2cli will skip"
+else
+  tools_stamp=$( {
+    (cd "$VENDOR" && sha256sum ./*.tar.gz)
+    "$VPY" -VV
+    echo "$pip_stamp"
+  } | hash_of)
+  if [[ $FORCE != 1 && -f $TOOLS/.mlkm-stamp && $(<"$TOOLS/.mlkm-stamp") == "$tools_stamp" ]]; then
+    log 'ros2 tools up to date'
+  else
+    log "ros2 tools: installing ros2cli and launch from $VENDOR into build/ros2_tools"
+    rm -rf "$TOOLS"
+    mkdir -p "$TOOLS/src"
+    for t in "$VENDOR"/*.tar.gz; do
+      n=$(basename "$t" .tar.gz)
+      mkdir -p "$TOOLS/src/$n"
+      tar -xzf "$t" -C "$TOOLS/src/$n"
+    done
+    # The pure-Python packages (each has a setup.py), in one pip call: with --target, pip moves
+    # every package's files (bin/, share/ament_index/...) into the one prefix.
+    mapfile -t py_pkgs < <(find "$TOOLS/src" -mindepth 3 -maxdepth 4 -name setup.py \
+      -not -path '*/test/*' -printf '%h\n' | LC_ALL=C sort)
+    ((${#py_pkgs[@]})) || die "ros2 tools: no setup.py under $TOOLS/src"
+    "$VPY" -m pip install --disable-pip-version-check --no-input -q --no-deps \
+      --no-build-isolation --target "$TOOLS/python" "${py_pkgs[@]}" 2>&1 \
+      | { grep -v -E "^WARNING: Location 'file://.*' is ignored" || true; } \
+      || die 'ros2 tools: pip install failed (see above)'
+    # composition_interfaces (launch_ros imports it) is a message package: colcon, as ros2_ws.
+    msg_pkg=$(find "$TOOLS/src" -mindepth 3 -maxdepth 3 -type d -name composition_interfaces)
+    [[ -n $msg_pkg ]] || die "ros2 tools: no composition_interfaces under $TOOLS/src"
+    (cd "$TOOLS" && "${COLCON[@]}" --log-base "$TOOLS/log" --log-level error build \
+      --base-paths "$msg_pkg" --build-base "$TOOLS/build" --install-base "$TOOLS/install" \
+      --merge-install --event-handlers desktop_notification- terminal_title- status- \
+      --cmake-args -DPython3_EXECUTABLE="$VPY" -DBUILD_TESTING=OFF -Wno-dev \
+      >"$TOOLS/colcon.out" 2>&1) \
+      || { tail -n 40 "$TOOLS/colcon.out"; die "ros2 tools: colcon build of composition_interfaces \
+failed (log: build/ros2_tools/colcon.out)"; }
+    echo "$tools_stamp" >"$TOOLS/.mlkm-stamp"
+    log 'ros2 tools: done (tests source scripts/ros2_tools.sh)'
+  fi
+fi
+
+# --- 5. colcon build -------------------------------------------------------------------------------
 # What needs a rebuild: any file added or removed, or a changed non-Python file (msg, CMake,
 # package.xml, setup.cfg, config) or setup.py. Edits of Python modules need none: the build is
 # a --symlink-install (develop mode), so the overlay runs the sources.

@@ -106,3 +106,32 @@ def test_player_converts_a_bag_recorded_with_the_old_definition(
     assert all(m.lane == -1 and m.sensor_id == 3 for m in got)
     assert 'recorded with another definition' in player.output()
     assert player.proc.wait(30) == 0, player.output()
+
+
+@pytest.mark.ros
+def test_player_plays_the_sample_bag_layout_as_a_single_road(
+    ros_process, rclpy_context, spin_until, repo_root
+):
+    """bags/sample holds a SensorLayout from before road networks: the player converts it,
+    the nodes' reading of it is unchanged, and it reads as the one-link network of its road."""
+    from mlkm_ros import conversions as conv
+    from mlkm_ros import qos
+    from mlkm_ros.network_conversions import is_network_msg, msg_to_network
+    from road_sensor_msgs.msg import SensorLayout
+
+    node = Node('sample_layout_listener', context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    got: list[SensorLayout] = []
+    node.create_subscription(SensorLayout, qos.LAYOUT_TOPIC, got.append, qos.LAYOUT_QOS)
+    player = ros_process(
+        'rosbag_mcap', 'bag_player', '--ros-args', '-p', f'bag:={repo_root / "bags" / "sample"}',
+        '-p', 'include_regex:=^/road/sensor_layout$', '-p', 'rate:=0.0', '-p', 'linger:=-1.0',
+    )  # fmt: skip
+    assert spin_until(executor, lambda: len(got) >= 1, 60.0), player.output()
+    assert 'sensor_layout was recorded with another definition' in player.output()
+    layout = conv.layout_from_msg(got[0])
+    assert layout.n_sensors == 20 and not is_network_msg(got[0])
+    net = msg_to_network(got[0])
+    assert net.is_single_road() and len(net.links) == 1
+    assert net.station_offsets.tolist() == layout.positions.tolist()

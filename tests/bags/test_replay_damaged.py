@@ -16,7 +16,6 @@ from mcap.reader import make_reader
 from rclpy.serialization import deserialize_message
 
 from road_sensor_msgs.msg import Detection, EpisodeInfo, GroundTruth
-from rosbag_mcap.definitions import DefinitionCache
 from rosbag_mcap.reader import BagReader
 from rosbag_mcap.storage import BagWriter
 
@@ -37,7 +36,6 @@ def keep(topic: str, data: bytes) -> bool:
 
 def build_bag(path: Path) -> int:
     reader = BagReader(REPO / 'bags' / 'sample')
-    definitions = DefinitionCache()
     count = 0
     with BagWriter(path, chunk_size=16 * 1024) as writer:
         for message in reader.messages():
@@ -48,7 +46,7 @@ def build_bag(path: Path) -> int:
                 writer.add_topic(
                     message.topic,
                     info.type,
-                    definitions.full_text(info.type),
+                    reader.definition(message.topic),  # the bytes' own definition
                     info.offered_qos,
                     info.type_hash,
                 )

@@ -21,7 +21,7 @@ def test_one_real_cell_end_to_end_through_the_cli(tmp_path, monkeypatch):
     monkeypatch.setattr(peer, 'stonesoup_version', lambda: None)  # the peer part tests it
     out = tmp_path / 'out'
     argv = ['bench', '--quick', '--only', 'real', '--methods', 'assignment,multiframe']
-    assert cli.main([*argv, '--out', str(out), '--real-data', str(DATA)]) == 0
+    assert cli.main([*argv, '--output', str(out), '--real-data', str(DATA)]) == 0
 
     data = json.loads((out / 'real.json').read_text())
     (cell,) = data['cells']

@@ -106,7 +106,7 @@ def test_report_only_rewrites_the_readme_from_the_json_files(tmp_path, monkeypat
 
     soak._evaluate(data, {e: Score() for e in range(20)}, {}, 1000)
     (tmp_path / 'soak.json').write_text(json.dumps(data))
-    assert bench.main(['--report-only', '--out', str(tmp_path)]) == 0
+    assert bench.main(['--report-only', '--output', str(tmp_path)]) == 0
     readme = (tmp_path / 'README.md').read_text()
     assert 'soak 0.5 min (2026-01-01 00:00 UTC)' in readme
     # scorer: median of 92, 93 MiB (episodes 2-3 of 20) vs of 108..110 MiB (18-20): +17.8 %

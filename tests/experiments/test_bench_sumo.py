@@ -35,7 +35,7 @@ def test_quick_sumo_part_through_the_cli(tmp_path, monkeypatch):
     monkeypatch.setattr(sumo_families, 'plan', lambda quick: None)  # their own test
     monkeypatch.setattr(sumo, 'EXTRA_QUICK', {('ramps', 'clutter', (5, 3)): 1})
     monkeypatch.setitem(sumo.BUDGET, (5, 3), 120.0)
-    monkeypatch.chdir(tmp_path)  # the default --out is results/bench under the cwd
+    monkeypatch.chdir(tmp_path)  # the default --output is results/bench under the cwd
     argv = ['bench', '--quick', '--only', 'sumo', '--methods', 'assignment']
     assert cli.main([*argv, '--cache-dir', str(tmp_path / 'cache')]) == 0
 
@@ -131,7 +131,7 @@ def test_a_failing_part_is_reported_and_fails_the_run(tmp_path, monkeypatch):
         raise RuntimeError('netconvert missing')
 
     monkeypatch.setattr(sumo, 'run_sumo', broken)
-    assert bench.main(['--only', 'sumo', '--out', str(tmp_path)]) == 1
+    assert bench.main(['--only', 'sumo', '--output', str(tmp_path)]) == 1
     data = json.loads((tmp_path / 'sumo.json').read_text())
     assert data['status'] == 'failed: RuntimeError: netconvert missing'
     readme = (tmp_path / 'README.md').read_text()

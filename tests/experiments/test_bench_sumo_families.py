@@ -28,7 +28,7 @@ def test_a_family_cell_end_to_end_through_the_cli(tmp_path, monkeypatch):
     # the cells of today's scenarios are kept from the part's last JSON
     (out / 'sumo.json').write_text(json.dumps({'cells': [], 'date': 'earlier', 'wall_s': 1.0}))
     argv = ['bench', '--quick', '--only', 'sumo', '--families-only', '--methods', 'assignment']
-    assert cli.main([*argv, '--out', str(out), '--cache-dir', str(tmp_path / 'cache')]) == 0
+    assert cli.main([*argv, '--output', str(out), '--cache-dir', str(tmp_path / 'cache')]) == 0
 
     data = json.loads((out / 'sumo.json').read_text())
     assert data['cells_run']['date'] == 'earlier' and data['cells'] == []
@@ -119,3 +119,15 @@ def test_family_targets_report_pass_fail_and_cliffs():
     (cliff,) = [t for k, t in got.items() if k.startswith('no cliff')]
     assert cliff['met'] is False and cliff['value'] == 'time_speed 0.6 -> 0.9: -11.0 points'
     assert family_targets({}) == []
+
+
+def test_a_second_families_only_run_keeps_the_date_of_the_cells_it_keeps(monkeypatch):
+    """The cells of today's scenarios come from the run that made them, not from the
+    families-only run before this one."""
+    monkeypatch.setattr(sumo_families, 'run_families', lambda *args, **kwargs: {'cells': []})
+    first = {'cells': [{'scenario': 'highway'}], 'date': 'cells made', 'wall_s': 9.0}
+    once = sumo.run_sumo(['assignment'], {}, print, previous={**first, 'date': 'cells made'})
+    assert once['cells_run']['date'] == 'cells made'
+    twice = sumo.run_sumo(['assignment'], {}, print, previous={**once, 'date': 'families'})
+    assert twice['cells_run']['date'] == 'cells made'
+    assert twice['cells'] == [{'scenario': 'highway'}]

@@ -107,9 +107,11 @@ def _expected_truth(episodes: int, seed: int) -> int:
 def test_sensor_sim_at_full_speed_waits_for_a_slow_truth_subscriber(
     ros_process, ros_env, tmp_path
 ) -> None:
-    episodes, seed = 20, 3
+    # 10,000 ground-truth messages: twice Fast DDS's KEEP_ALL history limit (5,000 samples)
+    # and ten flow-control windows
+    episodes, seed = 10, 3
     expected = _expected_truth(episodes, seed)
-    assert expected == 20 * 50 * 20
+    assert expected == 10 * 50 * 20
     log = open(tmp_path / 'slow_sub.log', 'wb')  # noqa: SIM115 - closed below
     sub = subprocess.Popen(
         # 0.5 ms per message, a 0.5 s stall every 500 messages, gives up after 120 s idle.

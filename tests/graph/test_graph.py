@@ -6,11 +6,18 @@ even when the test fails.
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
 
 from mlkm_core.associators.base import AssociatorConfig, make_associator
 from mlkm_core.metrics import accuracy
@@ -102,7 +109,12 @@ def test_live_equals_offline_and_replay_equals_live(
     the recorded bag replayed into fresh nodes gives the same accuracy again."""
     episodes, seed = 3, 7
     bag = tmp_path / 'live_bag'
-    assoc = ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=mlkm')
+    assoc = ros_process(
+        'mlkm_assoc',
+        'association_node',
+        '--ros-args',
+        *('-p', 'method:=mlkm', '-p', 'markers_rate:=20.0'),
+    )
     scorer = ros_process('mlkm_assoc', 'scorer_node')
     recorder = ros_process(
         'rosbag_mcap',
@@ -143,6 +155,7 @@ def test_live_equals_offline_and_replay_equals_live(
     wait_idle(recorder.pid, timeout=60.0)
     assert recorder.stop(30.0) == 0
     assert (bag / 'metadata.yaml').is_file()
+    check_recorded_markers(bag)
     assoc.stop()
     scorer.stop()
     listener.scores.clear()
@@ -169,6 +182,85 @@ def test_live_equals_offline_and_replay_equals_live(
     )
     assert [listener.scores[e].accuracy for e in range(episodes)] == live
     assert all(listener.scores[e].total == 1000 for e in range(episodes))
+
+
+def _marker_rows(markers) -> list[tuple[str, int, float, str]]:
+    return [(m.ns, m.id, round(float(m.pose.position.x), 9), m.text) for m in markers]
+
+
+def _expected(msg, now_s: float, positions: list[float], road: float) -> dict[int, float]:
+    """Marker id -> x [m] of each track of ``msg`` drawn at stamp ``now_s`` [s]."""
+    out = {}
+    for t in msg.tracks:
+        if not len(t.positions):
+            continue
+        last = float(t.positions[-1])
+        nxt = next((p for p in positions if p > last), road)
+        stamp = t.stamps[-1].sec + t.stamps[-1].nanosec * 1e-9
+        x = min(last + float(t.velocities[-1]) * max(0.0, now_s - stamp), nxt)
+        assert last <= x <= nxt
+        if t.status == 2 and x >= nxt:  # FINAL and gone past its clamp: not drawn
+            continue
+        out[int(t.track_id)] = x
+    return out
+
+
+def check_recorded_markers(bag: Path) -> None:
+    """The bag's /mlkm/markers decode alike with rosbags and mcap-ros2-support, and each
+    track's marker is where its track puts it: between the track's last station and the next
+    (or the road's end), at last position + last speed x (marker stamp - last stamp)."""
+    arrays, tracks, layout = [], [], None
+    for path in sorted(bag.glob('*.mcap')):
+        with open(path, 'rb') as stream:
+            reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+            for _, channel, _, msg in reader.iter_decoded_messages(
+                topics=['/mlkm/markers', '/mlkm/tracks', '/road/sensor_layout']
+            ):
+                if channel.topic == '/mlkm/markers':
+                    arrays.append(msg)
+                elif channel.topic == '/mlkm/tracks':
+                    tracks.append(msg)
+                else:
+                    layout = msg
+    assert layout is not None and arrays
+    # rosbags decodes the markers alike (visualization_msgs from its Jazzy type store)
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        conns = [c for c in reader.connections if c.topic == '/mlkm/markers']
+        decoded = [
+            _marker_rows(reader.deserialize(raw, c.msgtype).markers)
+            for c, _, raw in reader.messages(connections=conns)
+        ]
+    assert decoded == [_marker_rows(a.markers) for a in arrays]
+
+    positions = [float(p) for p in layout.positions]
+    road = float(layout.road_length)
+    placed = 0
+    for array in arrays:
+        status = next((m.text for m in array.markers if m.ns == 'status'), '')
+        shown = {m.id: m.pose.position.x for m in array.markers if m.ns == 'tracks'}
+        if not status:  # before the first tracks: the road and its detections only
+            assert not shown
+            continue
+        if status.startswith('stream'):
+            # the node switched to stream mode once the simulator had gone: a new run, with
+            # no track of its own; the episodes' tracks have ended
+            assert not shown and all(not t.tracks for t in tracks if t.mode == 1)
+            continue
+        match = re.fullmatch(r'episode (\d+), (\d+)/(\d+) segments(, final)?', status)
+        assert match, status
+        episode, done, final = int(match[1]), int(match[2]), match[4] is not None
+        now = array.markers[0].header.stamp
+        now_s = now.sec + now.nanosec * 1e-9
+        candidates = [
+            t for t in tracks if (t.episode_id, t.segments_done, t.final) == (episode, done, final)
+        ]
+        assert candidates, status
+        assert any(
+            shown == pytest.approx(_expected(c, now_s, positions, road), abs=1e-6)
+            for c in candidates
+        ), (status, shown)
+        placed += len(shown)
+    assert placed > 0  # some tracks were drawn
 
 
 def test_nothing_lost_under_load(ros_process, listener, spin_until) -> None:

@@ -189,3 +189,25 @@ def test_sigint_while_the_player_plays(ros_process, rclpy_context, spin_until) -
     )  # fmt: skip
     assert spin_until(executor, lambda: len(truth) >= 1, 60.0), player.output()
     interrupt(player, 'bag_player while playing')
+
+
+@pytest.mark.parametrize('name', ['scorer_node', 'association_node', 'bag_player'])
+def test_sigint_again_and_again_until_it_ends(
+    ros_process, rclpy_context, spin_until, tmp_path, name
+) -> None:
+    """Ctrl-C in the terminal of `ros2 launch` reaches a node twice: once from the terminal,
+    once forwarded by launch, the second at any moment of the first one's clean-up, up to the
+    interpreter's own shut-down. Every one of them must leave the exit status at 0."""
+    node = Node('sigint_probe', context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    proc, own = start(ros_process, tmp_path, name)
+    assert spin_until(executor, lambda: own in node.get_node_names(), 60.0), proc.output()
+    sent_at = time.monotonic()
+    while proc.poll() is None and time.monotonic() - sent_at < BOUND:
+        try:
+            os.killpg(proc.pid, signal.SIGINT)
+        except ProcessLookupError:
+            break
+        time.sleep(0.002)
+    interrupt(proc, f'{name} under repeated SIGINT', sent_at)

@@ -16,6 +16,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from visualization_msgs.msg import Marker, MarkerArray
 
 from mlkm_assoc.association_node import AssociationNode
 from mlkm_core.associators.base import available_methods
@@ -566,3 +567,86 @@ def test_method_choices_are_described(rclpy_context) -> None:
             assert method in desc.additional_constraints
     finally:
         node.destroy_node()
+
+
+def test_markers_show_road_stations_and_tracks_where_they_are(harness) -> None:
+    """/mlkm/markers after the first segment: the road, the 4 stations with their detections,
+    and each track of the partial TrackArray placed along the road from its last station at
+    its last speed, at the graph's latest detection stamp."""
+    h = harness(method='mlkm', segment_size=2, markers_rate=50.0)
+    arrays: list[MarkerArray] = []
+    h.test.create_subscription(MarkerArray, qos.MARKERS_TOPIC, arrays.append, qos.MARKERS_QOS)
+    h.layout_pub.publish(conv.layout_to_msg(LAYOUT, 0))
+    h.wait(lambda: h.node.assembler.layout is not None)
+    h.wait_matched()
+    h.episode_pub.publish(conv.episode_started_msg(0, 3, 0, conv.seconds_to_ns(100.0), 0))
+    h.wait(lambda: h.node.assembler.knows_episode(0))
+    # (entry time [s], speed [m/s]); at sensors a and b only, the latest stamp is 24 s
+    targets = [(0.0, 10.0), (8.0, 12.5), (12.0, 20.0)]
+    for t0, v in targets:
+        for s in (0, 1):
+            h.detect(s, conv.seconds_to_ns(t0 + POS[s] / v), v)
+    h.wait(lambda: any(m.segments_done == 1 for m in h.tracks))
+    partial = next(m for m in h.tracks if m.segments_done == 1)
+
+    def status(array: MarkerArray) -> str:
+        return next((m.text for m in array.markers if m.ns == 'status'), '')
+
+    h.wait(lambda: any(status(a) == 'episode 0, 1/2 segments' for a in arrays))
+    array = next(a for a in arrays if status(a) == 'episode 0, 1/2 segments')
+    markers = array.markers
+    assert markers[0].action == Marker.DELETEALL
+    assert all(m.header.frame_id == 'road' for m in markers)
+    assert conv.time_to_ns(markers[0].header.stamp) == conv.seconds_to_ns(24.0)
+    by_ns: dict[str, dict[int, Marker]] = {}
+    for m in markers[1:]:
+        by_ns.setdefault(m.ns, {})[m.id] = m
+    assert [p.x for p in by_ns['road'][0].points] == [0.0, 500.0]
+    assert [by_ns['stations'][i].pose.position.x for i in range(4)] == POS
+    assert [by_ns['station_names'][i].text for i in range(4)] == NAMES
+    assert sorted((i, len(m.points)) for i, m in by_ns['detections'].items()) == [(0, 3), (1, 3)]
+    # each track: last station b (200 m), x = 200 + v (24 s - t_b), at most station c (300 m)
+    expected = {}
+    for track in partial.tracks:
+        assert track.positions[-1] == 200.0
+        elapsed = 24.0 - conv.time_to_ns(track.stamps[-1]) / 1e9
+        expected[track.track_id] = min(200.0 + track.velocities[-1] * elapsed, 300.0)
+    assert len(expected) == 3
+    got = {i: m.pose.position.x for i, m in by_ns['tracks'].items()}
+    assert got == pytest.approx(expected, abs=1e-6)
+    assert {i: m.text for i, m in by_ns['track_ids'].items()} == {i: str(i) for i in expected}
+    assert any(200.0 < x < 300.0 for x in got.values())  # one is between the stations
+    # switched off at run time: one last array clears the displays
+    assert h.node.set_parameters([Parameter('markers', value=False)])[0].successful
+    h.wait(lambda: [m.action for m in arrays[-1].markers] == [Marker.DELETEALL])
+
+
+def test_static_transform_where_tf2_msgs_is_installed(harness) -> None:
+    """On a ROS 2 install the node places frame road under markers_parent_frame on
+    /tf_static (the PyPI wheels have no tf2_msgs: skipped there)."""
+    tf2 = pytest.importorskip('tf2_msgs.msg')
+    h = harness(markers_parent_frame='odom')
+    got: list = []
+    h.test.create_subscription(tf2.TFMessage, '/tf_static', got.append, qos.TF_STATIC_QOS)
+    h.wait(lambda: bool(got))
+    (t,) = got[0].transforms
+    assert (t.header.frame_id, t.child_frame_id) == ('odom', 'road')
+    assert (t.transform.translation.x, t.transform.rotation.w) == (0.0, 1.0)
+
+
+def test_tracks_are_held_until_the_awaited_subscribers_matched(harness) -> None:
+    """wait_for_track_subscribers 2, the test's own subscriber one of them: the episode's
+    tracks wait in the node (tracks_held on /diagnostics) and reach the subscriber, in order,
+    once a second subscriber appeared."""
+    h = harness(wait_for_track_subscribers=2)
+    start_episode(h)
+    run_episode(h, 0, 0.0, 0)
+    h.wait(lambda: h.diag.get('episodes_final') == '1' and h.diag.get('tracks_held', '0') != '0')
+    held = int(h.diag['tracks_held'])
+    assert h.tracks == []
+    h.test.create_subscription(TrackArray, qos.TRACKS_TOPIC, lambda _msg: None, qos.TRACKS_QOS)
+    h.wait(lambda: 0 in h.finals())
+    assert len(h.tracks) == held
+    assert [m.final for m in h.tracks] == [False] * (held - 1) + [True]
+    assert_perfect(h.finals()[0])
+    h.wait(lambda: h.diag.get('tracks_held') == '0')

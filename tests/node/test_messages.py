@@ -77,6 +77,15 @@ def filled(name: str):
             lane_counts=[3, 2, 65535],
             entry_positions=[1200.0],
             exit_positions=[2300.5, 4300.0],
+            link_ids=[0, U32_MAX],
+            link_names=['main_in', 'ramp_é'],
+            link_lengths=[800.0, 4999.5],
+            link_lanes=[3, 65535],
+            connection_from=[0],
+            connection_to=[U32_MAX],
+            sensor_links=[0, 0, U32_MAX],
+            entry_links=[U32_MAX],
+            exit_links=[0, U32_MAX],
         )
     if name == 'EpisodeInfo':
         return cls(

@@ -17,6 +17,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from visualization_msgs.msg import MarkerArray
 
 from mlkm_assoc.association_node import AssociationNode
 from mlkm_core.types import Layout
@@ -269,3 +270,74 @@ def test_auto_switches_to_episodes_when_an_episode_publisher_appears(harness) ->
 def test_refused_stream_parameters(rclpy_context, name, value) -> None:
     with pytest.raises(ParameterError, match=name):
         AssociationNode(context=rclpy_context, parameter_overrides=[Parameter(name, value=value)])
+
+
+def _drawn(array: MarkerArray) -> tuple[str, int, dict[int, tuple[float, bool, str]]]:
+    """(status text, stamp ns, marker id -> (x, solid, text) of each track drawn)."""
+    texts = {m.id: m.text for m in array.markers if m.ns == 'track_ids'}
+    tracks = {
+        m.id: (round(m.pose.position.x, 6), m.color.a == 1.0, texts[m.id])
+        for m in array.markers
+        if m.ns == 'tracks'
+    }
+    status = next((m.text for m in array.markers if m.ns == 'status'), '')
+    return status, conv.time_to_ns(array.markers[0].header.stamp), tracks
+
+
+def _consumer_view(arrays: list[TrackArray], now_ns: int) -> tuple[str, dict]:
+    """What the markers should show after ``arrays``, merged as a stream consumer does
+    (latest state per track id), at stamp ``now_ns``: a track moves on from its last station
+    at its last speed, up to the next station; a FINAL one that got there is gone."""
+    latest: dict[int, Track] = {}
+    for msg in arrays:
+        for t in msg.tracks:
+            latest[t.track_id] = t
+    cu = conv.time_to_ns(arrays[-1].committed_until)
+    out = {}
+    for track_id, t in latest.items():
+        if not len(t.positions):
+            continue
+        last, stamp = t.positions[-1], conv.time_to_ns(t.stamps[-1])
+        nxt = next((p for p in POS if p > last), LAYOUT.road_length)
+        x = min(last + t.velocities[-1] * max(0, now_ns - stamp) / 1e9, nxt)
+        if t.status == Track.STATUS_FINAL and x >= nxt:
+            continue
+        committed = stamp < cu
+        text = str(track_id) + ('' if committed else ' (revisable)')
+        out[track_id % 2**31] = (round(x, 6), committed, text)
+    status = 'stream' + (f', committed until {cu / 1e9:.1f} s' if cu > 0 else '')
+    return status, out
+
+
+def test_markers_tell_committed_from_revisable_tracks(harness) -> None:
+    """Stream mode's /mlkm/markers: the published tracks merged by id, each placed along the
+    road; one whose links are all committed is solid, one whose links may still be revised
+    translucent with "(revisable)" after its id."""
+    h = harness(mode='stream', lag=1.0, markers_rate=50.0)
+    arrays: list[MarkerArray] = []
+    h.test.create_subscription(MarkerArray, qos.MARKERS_TOPIC, arrays.append, qos.MARKERS_QOS)
+    h.start()
+    # vehicle A (12.5 m/s) passes stations a, b, c at 100, 108, 116 s; the road falls quiet
+    # and is flushed (after the lag, wall time): A's links are committed, A is FINAL but is
+    # still on its way to station d
+    for s, t in ((0, 100), (1, 108), (2, 116)):
+        h.detect(s, conv.seconds_to_ns(t), 12.5, 0, 4.5)
+    h.wait(lambda: any(m.committed_until.sec >= 116 for m in h.tracks))
+    # vehicle B (25 m/s) passes a and b at 118 and 122 s: its links may still be revised
+    for s, t in ((0, 118), (1, 122)):
+        h.detect(s, conv.seconds_to_ns(t), 25.0, 0, 4.5)
+    h.wait(lambda: any(_drawn(a)[0] == 'stream, committed until 122.0 s' for a in arrays))
+    h.wait(lambda: any(m.committed_until.sec >= 122 for m in h.tracks))  # its TrackArray too
+    both = []
+    for array in arrays:
+        status, now_ns, drawn = _drawn(array)
+        # the tracks the node had when it drew this: some prefix of what it published
+        views = [('', {})]  # before the first TrackArray
+        views += [_consumer_view(h.tracks[:k], now_ns) for k in range(1, len(h.tracks) + 1)]
+        assert (status, drawn) in views, (status, drawn)
+        if {solid for _, solid, _ in drawn.values()} == {True, False}:
+            both.append(drawn)
+    assert both, [_drawn(a) for a in arrays]  # one array showed a committed and a revisable
+    # A solid between stations c and d (6 s at 12.5 m/s past c), B translucent at b
+    assert any(sorted(d.values())[1][:2] == (375.0, True) for d in both)
+    assert any(sorted(d.values())[0][:2] == (200.0, False) for d in both)

@@ -106,6 +106,16 @@ def make_messages(store):
                 lane_counts=np.array([2, 3], dtype=np.uint16),
                 entry_positions=np.array([300.0]),
                 exit_positions=np.array([], dtype=np.float64),
+                # a single road: the road network's arrays are empty
+                link_ids=np.array([], dtype=np.uint32),
+                link_names=[],
+                link_lengths=np.array([], dtype=np.float64),
+                link_lanes=np.array([], dtype=np.uint16),
+                connection_from=np.array([], dtype=np.uint32),
+                connection_to=np.array([], dtype=np.uint32),
+                sensor_links=np.array([], dtype=np.uint32),
+                entry_links=np.array([], dtype=np.uint32),
+                exit_links=np.array([], dtype=np.uint32),
             ),
         )
     ]

@@ -25,8 +25,10 @@ from rclpy.subscription import Subscription
 
 from mlkm_assoc.assembly import Assembler, AssociationConfig, Job
 from mlkm_assoc.association_diagnostics import AssociationDiagnostics
+from mlkm_assoc.association_markers import RoadMarkers
 from mlkm_assoc.association_params import (
     BOUND_NAMES,
+    MARKER_PARAMS,
     NODE_PARAMS,
     SPECS,
     STREAM_PARAMS,
@@ -40,6 +42,7 @@ from mlkm_core.associators.base import AssociatorConfig
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle, qos
 from mlkm_ros.endpoints import PublisherCheck, no_events
+from mlkm_ros.held_publisher import HeldPublisher
 from mlkm_ros.params import ParameterError, declare_parameters
 from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
 
@@ -60,6 +63,8 @@ class AssociationNode(Node):
         )
         mode, lag, stream_method = (values.pop(name) for name in STREAM_PARAMS)
         max_uncommitted: int = values.pop('max_uncommitted')
+        wait_for_track_subscribers: int = values.pop('wait_for_track_subscribers')
+        markers = [values.pop(name) for name in MARKER_PARAMS]
         # the values given on the command line or in a params file (rclpy keeps them as the
         # node's parameter overrides)
         given = set(getattr(self, '_parameter_overrides', {}))
@@ -79,7 +84,11 @@ class AssociationNode(Node):
             + re.escape(self.resolve_topic_name(qos.DETECTIONS_PREFIX))
             + r'/([^/]+)/detections$'
         )
-        self._tracks_pub = self.create_publisher(TrackArray, qos.TRACKS_TOPIC, qos.TRACKS_QOS)
+        self._tracks_pub = HeldPublisher(
+            self.create_publisher(TrackArray, qos.TRACKS_TOPIC, qos.TRACKS_QOS),
+            wait_for_track_subscribers,
+            self._on_tracks_held,
+        )
         self._diag_pub = self.create_publisher(
             DiagnosticArray, qos.DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS_QOS
         )
@@ -93,8 +102,15 @@ class AssociationNode(Node):
         self._diag_timer = self.create_timer(self._diag_period, self.publish_diagnostics)
         self._worker = threading.Thread(target=self._work, name='publisher', daemon=True)
         self._worker.start()
+        self._markers = RoadMarkers(self, *markers)
         self._modes = ModeSwitch(
-            self, self._tracks_pub, mode, lag, stream_method, max_uncommitted=max_uncommitted
+            self,
+            self._tracks_pub,
+            mode,
+            lag,
+            stream_method,
+            max_uncommitted=max_uncommitted,
+            on_publish=self._markers.tracks,
         )
         self.get_logger().info(
             f'method {self._config.method}, segment_size {self._config.segment_size}, '
@@ -118,6 +134,8 @@ class AssociationNode(Node):
             self._stats.window = changed['diagnostics_window']
         if 'warn_rejected_fraction' in changed:
             self._stats.warn_fraction = changed['warn_rejected_fraction']
+        if 'markers' in changed:
+            self._markers.enabled = changed['markers']
         keep = {k: v for k, v in changed.items() if k not in NODE_PARAMS}
         if keep:
             cfg = self._config.__dict__ | keep
@@ -152,6 +170,7 @@ class AssociationNode(Node):
             # the episodes that begin from now on associate on the layout's open road
             self._config = replace(self._config, entries=entries, exits=exits)
             self._assembler.config = self._config
+        self._markers.layout(layout)
         runs = self._assembler.runs
         published_ns = conv.time_to_ns(msg.header.stamp)
         if not self._assembler.set_layout(layout, time.monotonic(), published_ns, lane_counts):
@@ -180,12 +199,22 @@ class AssociationNode(Node):
             )
 
     def _on_detection(self, msg: Detection) -> None:
+        stamp = msg.header.stamp
+        stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
+        if self._markers.enabled:
+            self._markers.detection(
+                msg.sensor_id,
+                stamp_ns,
+                msg.position,
+                msg.velocity,
+                msg.lane,
+                self._assembler.bounds,
+            )
         if self._modes.take_detection(msg):
             return
-        stamp = msg.header.stamp
         self._assembler.add_detection(
             msg.sensor_id,
-            stamp.sec * NS_PER_S + stamp.nanosec,
+            stamp_ns,
             msg.position,
             msg.velocity,
             time.monotonic(),
@@ -220,7 +249,16 @@ class AssociationNode(Node):
                 'begins'
             )
 
+    def _on_tracks_held(self, held: int, subscribers: int) -> None:
+        self.get_logger().info(
+            f'{held} TrackArray(s) held until {qos.TRACKS_TOPIC} has '
+            f'{self._tracks_pub.least} subscriber(s) (wait_for_track_subscribers), '
+            f'{subscribers} now',
+            throttle_duration_sec=5.0,
+        )
+
     def _on_tick(self) -> None:
+        self._tracks_pub.poll()
         self._assembler.tick(time.monotonic())
         self._modes.tick(time.monotonic())
         self._publisher_check.check(list(self._det_subs))
@@ -258,6 +296,7 @@ class AssociationNode(Node):
 
     def _publish(self, update: Update) -> None:
         self._tracks_pub.publish(update.data)
+        self._markers.tracks(update.data)
         self._stats.published(update, time.monotonic() - update.completed_at)
         if update.error:
             self.get_logger().error(update.error)
@@ -275,6 +314,7 @@ class AssociationNode(Node):
             self._config, self._assembler, self._publisher_check.incompatible
         )
         self._modes.diagnostics(values)
+        values['tracks_held'] = self._tracks_pub.held
         return values
 
     def diagnostics_level(self, values: dict[str, object], now: float) -> tuple[int, str]:

@@ -15,12 +15,16 @@ from mlkm_ros.params import ParamSpec, positive
 
 #: Parameters of stream mode (mlkm_assoc.modes), read once at start-up.
 STREAM_PARAMS = ('mode', 'lag', 'stream_method')
+#: Parameters of /mlkm/markers (mlkm_assoc.association_markers).
+MARKER_PARAMS = ('markers', 'markers_rate', 'markers_parent_frame')
 #: Parameters of the node itself, not of the assembly.
 NODE_PARAMS = (
+    *MARKER_PARAMS,
     'diagnostics_period',
     'diagnostics_window',
     'warn_rejected_fraction',
     'max_uncommitted',
+    'wait_for_track_subscribers',
     *STREAM_PARAMS,
 )
 _DEFAULTS = AssociationConfig()
@@ -194,6 +198,38 @@ SPECS = [
         '[detections]',
         0,
         100_000_000,
+        read_only=True,
+    ),
+    ParamSpec(
+        'wait_for_track_subscribers',
+        0,
+        'hold the tracks until /mlkm/tracks has this many subscribers, then publish them in '
+        'order (a scorer, recorder or tracker started with the graph misses none while DDS '
+        'discovery completes); 0 = publish at once [-]',
+        0,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        'markers',
+        True,
+        'publish /mlkm/markers: the road, its stations and their latest detections, each '
+        'track placed along the road (visualization_msgs/MarkerArray, frame road) [-]',
+    ),
+    ParamSpec(
+        'markers_rate',
+        2.0,
+        'most /mlkm/markers arrays per second (one only when something changed) [Hz]',
+        0.01,
+        100.0,
+        check=positive,
+        read_only=True,
+    ),
+    ParamSpec(
+        'markers_parent_frame',
+        'map',
+        'parent frame of the road frame in the identity transform on /tf_static (published '
+        'only where tf2_msgs is installed); empty: no transform [-]',
         read_only=True,
     ),
     ParamSpec(

@@ -45,9 +45,11 @@ class ModeSwitch:
         lag: float,
         method: str,
         max_uncommitted: int = 0,
+        on_publish: Callable[[bytes], None] | None = None,
     ) -> None:
         self._node = node
         self._publisher = publisher
+        self._on_publish = on_publish  # also given every TrackArray published
         self.setting = mode
         self._lag = lag
         self._method = method
@@ -187,6 +189,8 @@ class ModeSwitch:
         def publish(data: bytes) -> None:
             if context.ok():  # after Ctrl-C the context is gone: nothing left to publish to
                 self._publisher.publish(data)
+                if self._on_publish is not None:
+                    self._on_publish(data)
 
         self.stream = StreamMode(
             settings, cfg.bounds(), publish, log, on_reject=self._node._on_reject

@@ -23,7 +23,15 @@ DETECTIONS_PREFIX = 'road/sensors'
 TRACKS_TOPIC = 'mlkm/tracks'
 SCORE_TOPIC = 'mlkm/score'
 DIAGNOSTICS_TOPIC = '/diagnostics'
+MARKERS_TOPIC = 'mlkm/markers'
+TF_STATIC_TOPIC = '/tf_static'
 CLOCK_TOPIC = '/clock'
+
+#: Topics a recording of the graph leaves out: ROS housekeeping (bag_recorder exclude_regex).
+RECORD_EXCLUDE_REGEX = '^/(rosout|parameter_events)$'
+#: Topics a replay plays (bag_player include_regex): the sensors' side of the graph only,
+#: never the recorded tracks, scores or diagnostics, which the fresh nodes produce again.
+REPLAY_INCLUDE_REGEX = r'^/road/(sensor_layout|episode|ground_truth|sensors/[^/]+/detections)$'
 
 #: How many episodes (two EpisodeInfo messages each) and scores a late joiner still gets.
 LATCHED_HISTORY_DEPTH = 1000
@@ -68,3 +76,10 @@ DIAGNOSTICS_QOS = _keep_last(100, DurabilityPolicy.VOLATILE)
 
 #: /clock: reliable writer, depth 1 (matches the usual best-effort clock readers too).
 CLOCK_QOS = _keep_last(1, DurabilityPolicy.VOLATILE)
+
+#: /mlkm/markers: reliable; transient_local depth 1, so a display that joins late gets the
+#: latest picture at once (the node publishes only when it changed).
+MARKERS_QOS = _keep_last(1, DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: /tf_static: reliable, transient_local, depth 1 (what tf2's static broadcasters offer).
+TF_STATIC_QOS = _keep_last(1, DurabilityPolicy.TRANSIENT_LOCAL)

@@ -79,7 +79,7 @@ PLAYER_PARAMS = (
     StartupParam(
         'rate',
         1.0,
-        'Playback speed factor: 1.0 = recorded timing, 2.0 = twice as fast; 0 = as fast '
+        'Playback speed factor [-]: 1.0 = recorded timing, 2.0 = twice as fast; 0 = as fast '
         'as the middleware takes the messages (keep_all: blocks, never drops).',
         0.0,
         1000.0,

@@ -5,7 +5,7 @@ Writes ``<out>/<part>.json`` for each part run (``grid``, ``peer``, ``cost``, ``
 ``live``, ``soak``), ``summary.json`` (the targets: met or not, with the values), PNG plots and
 ``README.md`` (from every part's JSON present, so one part can be rerun alone with ``--only``).
 Never part of ``make test``; ``--quick`` runs a small version (a smoke check). Paths come from
-the arguments (``--out``, default ``results/bench`` under the current directory).
+the arguments (``--output``, default ``results/bench`` under the current directory).
 
 Modules: ``grid`` (every method on simulated cells, paper and clutter mode, time budgets),
 ``cost`` (runtime and memory growth), ``peer`` (Stone Soup), ``sumo`` (SUMO scenarios, with

@@ -12,7 +12,7 @@ segment is complete (the callback of its last detection) to the publication of i
 p50 and p95 over all segments, from the node's /diagnostics; ``overhead`` is the same less
 the associator's own solve time (what the node adds).
 
-    python -m mlkm_experiments.bench.live [--out results/bench] [--episodes 3] [--method mlkm]
+    python -m mlkm_experiments.bench.live [--output results/bench] [--episodes 3] [--method mlkm]
 
 ``run(out_dir, episodes, method) -> dict`` measures; ``run_live(out_dir, log)`` runs that in a
 process of its own for ``mlkm bench``.
@@ -322,7 +322,7 @@ def run_live(out_dir: Path, log) -> dict:
     target = Path(out_dir) / 'live.json'
     try:
         res = subprocess.run(
-            [sys.executable, '-m', 'mlkm_experiments.bench.live', '--out', str(out_dir)],
+            [sys.executable, '-m', 'mlkm_experiments.bench.live', '--output', str(out_dir)],
             capture_output=True,
             text=True,
             timeout=1200,
@@ -350,14 +350,14 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ['--bare']:
         return bare_subscriber(int(argv[1]))
     p = argparse.ArgumentParser(description='Live throughput benchmark')
-    p.add_argument('--out', type=Path, default=Path('results/bench'))
+    p.add_argument('--output', type=Path, default=Path('results/bench'))
     p.add_argument('--episodes', type=int, default=3)
     p.add_argument('--method', default='mlkm')
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--repeats', type=int, default=5)
     args = p.parse_args(argv)
-    result = run(args.out, args.episodes, args.method, args.seed, args.repeats)
-    print((args.out / 'live.md').read_text())
+    result = run(args.output, args.episodes, args.method, args.seed, args.repeats)
+    print((args.output / 'live.md').read_text())
     return 0 if result['nothing_lost'] else 1
 
 

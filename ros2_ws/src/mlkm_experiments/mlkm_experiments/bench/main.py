@@ -11,15 +11,16 @@ import traceback
 from pathlib import Path
 
 from mlkm_core.associators import available_methods
+from mlkm_core.cli_args import renamed_option
 
-from . import cost, grid, peer, real, soak, stream, sumo, sumo_families
+from . import cost, grid, network, peer, real, soak, stream, sumo, sumo_families
 from .plots import plot_all, plot_stream
 from .report import write_readme
 from .targets import evaluate_targets
 
 #: Parts in the order they run: the ones that fork child processes come before the ones that
 #: start DDS participants in this process (soak).
-PARTS = ('grid', 'peer', 'cost', 'real', 'sumo', 'live', 'soak', 'stream')
+PARTS = ('grid', 'peer', 'cost', 'real', 'sumo', 'network', 'live', 'soak', 'stream')
 
 
 def _run_live(out_dir: Path, log) -> dict:
@@ -38,7 +39,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     from . import __doc__ as doc
 
     ap = argparse.ArgumentParser(prog='mlkm bench', description=doc.splitlines()[0])
-    ap.add_argument('--out', default='results/bench', help='output directory (results/bench)')
+    renamed_option(
+        ap, '--output', '--out', default='results/bench', help='output directory (results/bench)'
+    )
     ap.add_argument('--quick', action='store_true', help='small smoke version')
     ap.add_argument(
         '--only',
@@ -73,7 +76,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    out_dir = Path(args.out)
+    out_dir = Path(args.output)
     out_dir.mkdir(parents=True, exist_ok=True)
     parts = [] if args.report_only else [p for p in PARTS if p in set(args.only or PARTS)]
     methods = args.methods.split(',') if args.methods else available_methods()
@@ -121,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
             families=sumo_families.plan(quick),
             previous=load('sumo') if args.families_only else None,
         ),
+        'network': lambda: network.run_network(log, quick, args.cache_dir),
         'live': lambda: _run_live(out_dir, log),
         'soak': lambda: soak.run_soak(
             log, episodes=soak.QUICK_EPISODES if quick else soak.EPISODES
@@ -145,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     results['grid_reference'] = load('grid_reference')  # the grid's reference run
     targets = evaluate_targets(results)
     meta = {
-        'out': args.out,
+        'out': args.output,
         'quick': quick,
         'only': args.only or [],
         'seconds': time.monotonic() - t_start,

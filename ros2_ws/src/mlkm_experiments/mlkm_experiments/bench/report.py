@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .common import BEST, MODES, pct
 from .grid import grid_cell
+from .network import report_lines as network_report
 from .plots import plot_sumo_curves
 from .real import report_lines as real_report
 from .soak import report_lines as soak_report
@@ -22,7 +23,7 @@ def write_readme(out_dir: Path, parts: dict[str, dict], targets: list[dict], met
     L = [
         '# Benchmarks (`make bench`)',
         '',
-        f'Written by `mlkm bench --out {meta["out"]}` on {meta["date"]} from the JSON files '
+        f'Written by `mlkm bench --output {meta["out"]}` on {meta["date"]} from the JSON files '
         'of its parts next to this README; every figure below comes from them. A part run '
         'alone (`--only <part>`) replaces only its own file; `--report-only` rewrites this '
         'README, `summary.json` and the plots without running anything. Each part was last '
@@ -180,6 +181,7 @@ def write_readme(out_dir: Path, parts: dict[str, dict], targets: list[dict], met
     L += sumo_report(parts.get('sumo', {}))
     sumo = parts.get('sumo', {})
     L += sumo_families_report(sumo, plot_sumo_curves(out_dir, sumo))
+    L += network_report(parts.get('network', {}))
     L += soak_report(parts.get('soak', {}))
     L += stream_report(parts.get('stream', {}))
     (out_dir / 'README.md').write_text('\n'.join(L) + '\n')

@@ -101,7 +101,10 @@ def run_sumo(
 
     if previous is not None:
         out = {k: v for k, v in previous.items() if k not in ('families', 'status')}
-        out['cells_run'] = {k: previous.get(k) for k in ('date', 'wall_s', 'quick')}
+        # the run that made the cells kept: an earlier families-only run kept them too
+        out['cells_run'] = previous.get('cells_run') or {
+            k: previous.get(k) for k in ('date', 'wall_s', 'quick')
+        }
         out.setdefault('cells', [])
         with tempfile.TemporaryDirectory(prefix='mlkm_bench_sumo_') as tmp:
             cache = DatasetCache(cache_dir or Path(tmp))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from .common import BASELINE, BEST
 from .grid import grid_cell
+from .network import network_targets
 from .real import real_targets
 from .sumo_targets import grid_reference_target, sumo_targets
 
@@ -118,6 +119,7 @@ def evaluate_targets(results: dict[str, dict]) -> list[dict]:
     out.append(grid_reference_target(grid, results.get('grid_reference', {})))
     out += real_targets(results.get('real', {}))
     out += sumo_targets(results.get('sumo', {}))
+    out += network_targets(results.get('network', {}))
     out += stream_targets(results.get('stream', {}))
     return out
 
