@@ -9,6 +9,7 @@ sensor once (six true detections); the tracks either get them right or swap one 
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -388,10 +389,18 @@ def test_renamed_namespaced_scorer_reads_the_param_files(
     try:
         client = node.create_client(GetParameters, '/site_a/my_scorer/get_parameters')
         assert spin_until(executor, client.service_is_ready, 60.0), proc.output()
-        future = client.call_async(
-            GetParameters.Request(names=['truth_timeout', 'max_open_episodes'])
-        )
-        assert spin_until(executor, future.done, 30.0)
+        request = GetParameters.Request(names=['truth_timeout', 'max_open_episodes'])
+        # The client sees the server before the server has matched the client's response
+        # reader, and a request or response sent in that moment is lost (DDS discovery is
+        # not symmetric): a request without an answer is sent again.
+        future = None
+        deadline = time.monotonic() + 60.0
+        while future is None or not future.done():
+            assert time.monotonic() < deadline, proc.output()
+            if future is not None:
+                client.remove_pending_request(future)
+            future = client.call_async(request)
+            spin_until(executor, future.done, 5.0)
         values = future.result().values
         assert values[0].double_value == 42.5
         assert values[1].integer_value == 100

@@ -251,6 +251,29 @@ def test_auto_follows_the_input_both_ways(harness) -> None:
     assert_numbers(h.scores)
 
 
+def test_truth_of_a_new_episodes_source_is_not_taken_by_the_stream(harness) -> None:
+    """mode auto, scoring a stream: an episodes source starts, and its first ground truth
+    arrives before its first EpisodeInfo and before the node's next tick. The truth is the
+    episodes mode's: it waits for its episode there, the stream does not keep it."""
+    h = harness()
+    h.truth(A, 0)
+    h.tracks([(0, CONFIRMED, A)], committed_s=5.0)
+    assert h.node._stream.active
+    source = h.probe.create_publisher(
+        type(episode_msgs(0, 0.0, 0.0)[0]), qos.EPISODE_TOPIC, qos.EPISODE_QOS
+    )
+    deadline = time.monotonic() + 30.0
+    while h.node.count_publishers(qos.EPISODE_TOPIC) < 1:  # the graph, not the executor
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    held = len(h.node._stream.scorer.truth)
+    h.truth(B, 1)
+    assert not h.node._stream.active
+    assert len(h.node._stream.scorer.truth) == held
+    assert sorted(k[0] for k in h.node._open[0].truth) == list(SENSORS)
+    h.probe.destroy_publisher(source)
+
+
 def test_a_later_run_ends_the_earlier_ones_tracks(harness) -> None:
     """The association node restarted: run R1's tracks stay CONFIRMED, its committed_until
     stops at 40 s, its newest detection is at 82 s. R2's first message (empty, committed_until

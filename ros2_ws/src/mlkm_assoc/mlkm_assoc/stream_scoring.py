@@ -141,6 +141,10 @@ class StreamScoring:
 
     def take_truth(self, msg) -> bool:
         """True when the GroundTruth was the stream's alone."""
+        if self.mode == 'auto' and self.active and self._episode_source():
+            # An episodes source started: its truth can come before its first EpisodeInfo
+            # (another topic) and before the next tick; it is the episodes mode's.
+            self._to_episodes('a /road/episode publisher appeared')
         copy = not self.active and not self._source
         if self.mode == 'episodes' or not (self.active or copy):
             return False
