@@ -30,20 +30,27 @@ from mlkm_core.associators.repair import repaired
 from mlkm_core.model.catalogue import bind_cues, fit_cues, generic_cues, refined_kinds
 from mlkm_core.model.gap_delays import GapDelays
 from mlkm_core.model.motion import FLOOR_T, FLOOR_V, MotionParams
+from mlkm_core.model.traffic import TrafficSlowness, estimate_traffic
 from mlkm_core.progress import stage
 from mlkm_core.types import Detections, Layout
 
 
 def _variogram_fit(
-    layout: Layout, d: Detections, labels: np.ndarray, max_pairs: int = 200_000
+    layout: Layout,
+    d: Detections,
+    labels: np.ndarray,
+    traffic: TrafficSlowness | None = None,
+    max_pairs: int = 200_000,
 ) -> tuple[float, float, float] | None:
-    """(nugget sigma_v, sill sigma, range L) of the speed variogram over same-track pairs."""
+    """(nugget sigma_v, sill sigma, range L) of the speed variogram over same-track pairs;
+    of each speed's departure from the ``traffic``'s where it is given."""
     keep = labels >= 0
     if keep.sum() < 10:
         return None
     lab, x, v = labels[keep], layout.positions[d.sensor_index[keep]], d.velocity[keep]
+    t = d.stamp[keep]
     order = np.lexsort((x, lab))
-    lab, x, v = lab[order], x[order], v[order]
+    lab, x, v, t = lab[order], x[order], v[order], t[order]
     h_all, g_all = [], []
     n = lab.size
     for lag in range(1, 12):
@@ -51,7 +58,11 @@ def _variogram_fit(
             break
         same = lab[lag:] == lab[:-lag]
         h_all.append((x[lag:] - x[:-lag])[same])
-        g_all.append(0.5 * (v[lag:] - v[:-lag])[same] ** 2)
+        ahead = v[:-lag][same]  # the speed the vehicle would have if it followed the traffic
+        if traffic is not None:
+            a, b = np.flatnonzero(same), np.flatnonzero(same) + lag
+            ahead = 1.0 / (1.0 / ahead + traffic.change(x[a], t[a], x[b], t[b]))
+        g_all.append(0.5 * (v[lag:][same] - ahead) ** 2)
     h = np.concatenate(h_all)
     g = np.concatenate(g_all)
     if h.size < 10:
@@ -85,7 +96,7 @@ def _variogram_fit(
 def calibrate(layout: Layout, d: Detections, raw: np.ndarray, base: MotionParams) -> MotionParams:
     """Moment estimates of the model parameters from the raw track ids of a first pass."""
     labels = relabel(raw)
-    fit = _variogram_fit(layout, d, labels)
+    fit = _variogram_fit(layout, d, labels, base.traffic)
     p = base
     if fit is not None:
         nug, sill, L = fit
@@ -329,7 +340,10 @@ def estimate_params(
     rounds of link passes. Where the first pass shows a holdup that changes with time (a
     queue that builds and clears), the gap's extra time follows the stations' count curves
     (``count_curves``); ``openings`` (``MotionParams.road_openings``; None: a closed road) say
-    between which stations vehicles enter or leave, where counts do not pair vehicles.
+    between which stations vehicles enter or leave, where counts do not pair vehicles. Where
+    the stations' median speeds show a change every vehicle shares (``model.traffic``: the
+    end of road works), the models follow it from the moments on, once the gaps' extra times
+    are settled (the first pass and the delays are chosen without it).
     """
     base = MotionParams()
     cues = generic_cues(layout, d)
@@ -365,6 +379,10 @@ def _estimate_from(
             delay = GapDelays.per_gap(layout.positions, extra, np.zeros_like(extra))
             base = replace(base, delay=beside(delay, base.delay))
             raw = link(layout, d, base, 'pairwise')
+    traffic = estimate_traffic(layout, d)
+    if traffic is not None:
+        base = replace(base, traffic=traffic)
+        raw = link(layout, d, base, 'pairwise')
     p = calibrate(layout, d, raw, base)
     if cues is not None:
         p = replace(p, cues=bind_cues(layout, d, fit_cues(layout, d, relabel(raw))))

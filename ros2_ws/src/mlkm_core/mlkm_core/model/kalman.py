@@ -114,6 +114,12 @@ class KalmanModel(MotionModel):
         if delay is not None:
             mean[:, 0] += delay.extra_time(self.x[tracks], x, m[:, 0])
             cov[:, 0, 0] += delay.extra_var(self.x[tracks], x)
+        if self.p.traffic is not None:
+            # the whole speed level follows the traffic's; half its change over the gap
+            shift = self.p.traffic.change(self.x[tracks], m[:, 0], x, mean[:, 0])
+            mean[:, 0] += d * shift / 2
+            mean[:, 1] += shift
+            mean[:, 2] += shift
         q01 = su2 * L * (1 - a) ** 2
         cov[:, 0, 1] += q01
         cov[:, 1, 0] += q01

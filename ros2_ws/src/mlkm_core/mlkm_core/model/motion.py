@@ -42,6 +42,7 @@ import numpy as np
 
 from mlkm_core.model.cues import CueSet
 from mlkm_core.model.gap_delays import GapDelays
+from mlkm_core.model.traffic import TrafficSlowness
 from mlkm_core.registry import Registry
 
 LOG2PI = math.log(2.0 * math.pi)
@@ -87,6 +88,9 @@ class MotionParams:
     # extra travel time of the gaps between consecutive sensors that the speeds measured at
     # their ends do not show (road works, a queue between two sensors); None: none
     delay: GapDelays | None = field(default=None, compare=False, repr=False)
+    # the traffic's own slowness at each station over time, which every vehicle's follows
+    # (a queue, the end of road works); None: vehicles keep to their own cruise speed only
+    traffic: TrafficSlowness | None = field(default=None, compare=False, repr=False)
     # the cues (lane, length, ...) bound to the detections being associated (None: none)
     cues: CueSet | None = field(default=None, compare=False, repr=False)
     # the fluctuation and noise parameters the pairwise model links with, fitted under its
@@ -136,6 +140,17 @@ class MotionParams:
         """Extra travel time [s] from position x1 to x2 of a vehicle at x1 at time ``t1``
         (``delay``; 0 without it)."""
         return 0.0 if self.delay is None else self.delay.extra_time(x1, x2, t1)
+
+    def traffic_change(
+        self,
+        x1: float | np.ndarray,
+        t1: float | np.ndarray,
+        x2: float | np.ndarray,
+        t2: float | np.ndarray,
+    ) -> float | np.ndarray:
+        """How the traffic's slowness changes from (x1, t1) to (x2, t2) [s/m] (``traffic``;
+        0 without it)."""
+        return 0.0 if self.traffic is None else self.traffic.change(x1, t1, x2, t2)
 
     def extra_var(self, x1: float | np.ndarray, x2: float | np.ndarray) -> float | np.ndarray:
         """Variance [s^2] of the extra travel time from x1 to x2 (0 without ``delay``)."""
@@ -331,7 +346,10 @@ class PairwiseModel(MotionModel):
         x1 = self.x[tracks]
         var_t = var_t + p.extra_var(x1, pred.x)
         t1 = self.t[tracks]
-        return t1 + dx * u + p.extra_time(x1, pred.x, t1), np.sqrt(p.gate * var_t)
+        # the slowness at the far end moves with the traffic's: half of it over the gap
+        shift = p.traffic_change(x1, t1, pred.x, t1 + dx * u)
+        centre = t1 + dx * (u + shift / 2) + p.extra_time(x1, pred.x, t1)
+        return centre, np.sqrt(p.gate * var_t)
 
     def cost(
         self, pred: Prediction, t: np.ndarray, u: np.ndarray
@@ -342,7 +360,7 @@ class PairwiseModel(MotionModel):
         su2 = (p.sigma * u1 * u) ** 2  # sigma_u^2 with m^2 ~ u1 u2
         vn1, vn2 = self._var_u_noise(u1), self._var_u_noise(u)
         e_t, var_t = trapezoid_residual(p, self.x[tracks], pred.x, self.t[tracks], t, u1, u)
-        e_u = u - u1
+        e_u = u - u1 - p.traffic_change(self.x[tracks], self.t[tracks], pred.x, t)
         var_u = vn1 + vn2 + 2 * su2 * (1 - np.exp(-dx / p.length))
         d2 = e_t * e_t / var_t + e_u * e_u / var_u
         nll = 0.5 * (d2 + np.log(var_t * var_u)) + LOG2PI

@@ -12,7 +12,8 @@ on its input (``Associator.calibrates``) either calibrates (and returns the mode
 ``CarriedModel``) or is given the model of the last calibrating window, carried over to its
 own detections. A model that learnt the order of passage within lanes (a queue) is bound to
 the detections it was learnt on and is not carried: the next window calibrates again. The
-count-curve profile of a gap's extra time is dropped from a carried model (its mean stays).
+count-curve profile of a gap's extra time is dropped from a carried model (its mean stays);
+the traffic's slowness over time is taken again from each window's own detections.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from mlkm_core.associators.base import AssociatorConfig, canonical_order
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.model.catalogue import bind_cues
 from mlkm_core.model.motion import MotionParams
+from mlkm_core.model.traffic import estimate_traffic
 from mlkm_core.streaming.motion import MIN_CALIBRATION, calibrate_on
 from mlkm_core.streaming.window import solve_window
 from mlkm_core.types import Detections, Layout
@@ -36,28 +38,34 @@ from mlkm_core.types import Detections, Layout
 class CarriedModel:
     """A method's calibrated motion model, free of the detections it was calibrated on."""
 
-    params: MotionParams  # cues None
+    params: MotionParams  # cues and traffic None
     cues: dict[str, Any] | None  # the cues' parameters by name (None: no cue)
     reusable: bool  # False: a cue holds what it learnt from its own detections
+    traffic: bool = False  # the model follows the traffic's slowness, taken from each window
 
     @staticmethod
     def of(params: MotionParams) -> CarriedModel:
-        """The model without what ties it to its detections: the cues' own state and the
-        gaps' count-curve profiles (their times; each gap keeps its mean extra time)."""
+        """The model without what ties it to its detections: the cues' own state, the
+        gaps' count-curve profiles (their times; each gap keeps its mean extra time) and the
+        traffic's slowness over time (each window takes its own from its detections)."""
         cues = params.cues
         if params.delay is not None and params.delay.profiles:
             params = replace(params, delay=replace(params.delay, profiles=()))
         return CarriedModel(
-            replace(params, cues=None),
+            replace(params, cues=None, traffic=None),
             None if cues is None else cues.carried(),
             cues is None or cues.reusable,
+            params.traffic is not None,
         )
 
     def bind(self, layout: Layout, d: Detections) -> MotionParams:
         """The model for the detections ``d`` (in the order the associator will use)."""
+        params = self.params
+        if self.traffic:
+            params = replace(params, traffic=estimate_traffic(layout, d, min_z=0.0))
         if self.cues is None:
-            return self.params
-        return replace(self.params, cues=bind_cues(layout, d, self.cues))
+            return params
+        return replace(params, cues=bind_cues(layout, d, self.cues))
 
 
 @dataclass(frozen=True)
