@@ -11,6 +11,8 @@ from mlkm_sumo.cli import main
 from mlkm_sumo.measurement import FALSE_ALARM
 
 read_detections = pytest.importorskip('mlkm_assoc.cli').read_detections
+associate = pytest.importorskip('mlkm_assoc.cli').main
+read_network_file = pytest.importorskip('mlkm_core.network_file').read_network_file
 
 
 @pytest.fixture
@@ -63,9 +65,35 @@ def test_cli_duration_and_given_stations(tmp_path, cache):
     assert all(float(r['length_m']) > 0 for r in rows)
 
 
+def test_cli_writes_a_network_that_mlkm_associate_reads(tmp_path, cache, capsys):
+    """--network: the detections CSV and the network layout file of a drawn interchange,
+    associated across its junctions by ``mlkm associate --layout``."""
+    out, layout = tmp_path / 'net.csv', tmp_path / 'net.yaml'
+    argv = ['--network', 'interchange', '--vehicles', '40', '--seed', '2', '--output', str(out),
+            '--layout', str(layout), '--cache-dir', cache]  # fmt: skip
+    assert main(argv) == 0
+    assert f'-> {out}, layout -> {layout}' in capsys.readouterr().out
+    net = read_network_file(layout)
+    rows = out.read_text().splitlines()
+    assert rows[0] == 'sensor_id,position_m,stamp_s,velocity_mps,target_id,lane,length_m'
+    ids = {int(r.split(',')[0]) for r in rows[1:]}
+    assert ids <= {int(i) for i in net.station_ids} and len(net.links) > 1
+    assert {int(r.split(',')[4]) for r in rows[1:]} >= set(range(40))
+    assert associate(['associate', '--input', str(out), '--layout', str(layout), '--output',
+                      str(tmp_path / 'tracks.csv'), '--method', 'assignment']) == 0  # fmt: skip
+    shown = capsys.readouterr().out
+    assert f'road network of {len(net.links)} links' in shown
+    accuracy = float(shown.split('accuracy: ')[1].split(' %')[0])
+    assert accuracy > 80.0
+
+
 @pytest.mark.parametrize(
     ('argv', 'message'),
     [
+        (['--network', 'interchange'], '--network needs --layout'),
+        (['--network', 'grid', '--layout', 'x.yaml', '--duration', '60'], 'do not apply'),
+        (['--network', 'interchange', '--layout', 'x.yaml', '--flow', '900'], 'cannot override'),
+        (['--scenario', 'highway', '--layout', 'x.yaml'], '--layout goes with --network'),
         (['--scenario', 'autobahn'], "unknown scenario 'autobahn'"),
         (['--scenario', 'highway', '--stations-at', '1000,x'], 'positions in metres'),
         (['--scenario', 'ramps', '--stations-at', '1000,1500'], 'lies in a junction'),

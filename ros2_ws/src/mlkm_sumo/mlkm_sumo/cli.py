@@ -1,7 +1,11 @@
 """``mlkm sumo``: run a SUMO scenario headless and write the detections as the product's CSV.
 
-``main(argv)`` returns the exit code: 0 on success, 2 with a one-line message on bad input
-(unknown scenario, bad layout, netconvert or SUMO failure); nothing is written then.
+``--scenario`` runs one of the single-road scenarios; ``--network`` draws a road network of a
+family (``network_families``: interchange, arterial, grid) for ``--seed``, runs it and writes
+the detections CSV (positions along each station's link) and the network layout file
+(``--layout``), which ``mlkm associate --layout`` reads. ``main(argv)`` returns the exit
+code: 0 on success, 2 with a one-line message on bad input (unknown scenario or family, bad
+layout, netconvert or SUMO failure); nothing is written then.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from mlkm_core.csvout import write_detections
 from .api import SumoDataset, generate
 from .measurement import CSV_DECIMALS, KIND_NAMES, MeasurementConfig
 from .network import SumoError
+from .network_families import NETWORK_FAMILIES
 from .scenarios import SCENARIOS
 
 DEFAULT_DURATION = 600.0
@@ -52,7 +57,15 @@ def build_parser() -> argparse.ArgumentParser:
         'detections as a detections CSV (sensor_id,position_m,stamp_s,velocity_mps,target_id,'
         f'lane,length_m). Scenarios: {scenarios}.',
     )
-    p.add_argument('--scenario', required=True, help='scenario name (see above)')
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument('--scenario', help='single-road scenario name (see above)')
+    what.add_argument(
+        '--network',
+        choices=sorted(NETWORK_FAMILIES),
+        help='a road network of this family, drawn for --seed (needs --layout; --vehicles '
+        'sets its vehicle count, --flow its demand; the station options do not apply)',
+    )
+    p.add_argument('--layout', help='with --network: the network layout file (YAML) to write')
     renamed_option(p, '--output', '--out', required=True, help='detections CSV to write')
     p.add_argument(
         '--vehicles',
@@ -116,6 +129,60 @@ def road_json(ds: SumoDataset) -> dict:
     }
 
 
+def _measurement(args: argparse.Namespace) -> MeasurementConfig:
+    return MeasurementConfig(
+        stamp_jitter=args.stamp_jitter,
+        speed_noise=args.speed_noise,
+        length_noise=args.length_noise,
+        miss_rate=args.miss_rate,
+        false_alarm_rate=args.false_alarm_rate,
+        double_reports=not args.no_double_reports,
+    )
+
+
+def _network(args: argparse.Namespace, measurement: MeasurementConfig) -> int:
+    """``--network``: draw, run and write a network family's dataset and its layout."""
+    from .road_networks import draw_network, generate_network, write_network_dataset
+
+    if args.layout is None:
+        print('mlkm sumo: error: --network needs --layout (the file to write)', file=sys.stderr)
+        return 2
+    unused = [
+        f'--{name.replace("_", "-")}'
+        for name in ('duration', 'stations_at', 'road')
+        if getattr(args, name) is not None
+    ]
+    if unused:
+        print(f'mlkm sumo: error: {", ".join(unused)} do not apply to --network', file=sys.stderr)
+        return 2
+    overrides = {}
+    if args.vehicles is not None:
+        overrides['vehicles'] = args.vehicles
+    if args.flow is not None:
+        overrides['flow'] = args.flow
+    try:
+        draw = draw_network(args.network, args.seed, **overrides)
+        ds = generate_network(draw, args.cache_dir, measurement, args.step_length)
+    except (SumoError, ValueError) as exc:
+        print(f'mlkm sumo: error: {exc}', file=sys.stderr)
+        return 2
+    if len(ds) == 0:
+        print(
+            f'mlkm sumo: error: no detections in {args.network} seed {args.seed}', file=sys.stderr
+        )
+        return 2
+    write_network_dataset(ds, args.output, args.layout)
+    s = ds.stats
+    print(
+        f'{len(ds)} detections of {ds.n_targets} vehicles at {len(ds.mapping["stations"])} '
+        f'stations on {len(ds.mapping["links"])} links -> {args.output}, layout -> '
+        f'{args.layout}\n{draw.family} seed {draw.seed}: {s["simulated_s"]:.0f} s simulated in '
+        f'{s["wall_s"]:.1f} s, {s["vehicles_inserted"]} vehicles inserted, {s["teleports"]} '
+        'teleports'
+    )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -125,18 +192,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.stations_at is not None and not args.stations_at:
         print('mlkm sumo: error: --stations-at names no position', file=sys.stderr)
         return 2
+    try:
+        measurement = _measurement(args)
+    except ValueError as exc:
+        print(f'mlkm sumo: error: {exc}', file=sys.stderr)
+        return 2
+    if args.network is not None:
+        return _network(args, measurement)
+    if args.layout is not None:
+        print('mlkm sumo: error: --layout goes with --network', file=sys.stderr)
+        return 2
     duration = args.duration
     if args.vehicles is None and duration is None:
         duration = DEFAULT_DURATION
     try:
-        measurement = MeasurementConfig(
-            stamp_jitter=args.stamp_jitter,
-            speed_noise=args.speed_noise,
-            length_noise=args.length_noise,
-            miss_rate=args.miss_rate,
-            false_alarm_rate=args.false_alarm_rate,
-            double_reports=not args.no_double_reports,
-        )
         ds = generate(
             args.scenario,
             n_vehicles=args.vehicles,
