@@ -12,6 +12,13 @@ that start or end inside the window; improving moves are applied greedily, best 
 track at most once per round; the next round looks only at moves that involve a track changed
 in the round before, for at most ``rounds`` rounds.
 
+Where the detections carry lanes, a move also pays for the order it breaks within a lane
+(``lane_swap_cost``): two vehicles in one lane at two consecutive sensors pass the second in
+the order they passed the first unless one changed lanes twice in between, and the tracks'
+own pairs show how rarely that happens. A move that makes such a pair cross (or uncross) at
+a boundary of the exchange changes the score by that log-odds; the likelihood of each track
+alone cannot see it (an exchange of two neighbours fits both tracks about as well).
+
 The work is bounded by ``budget``, the number of candidates scored over all rounds (each with
 all its ``MOVES``). Congested traffic (near-stationary vehicles, whose passage-time gates span
 the whole episode) can otherwise produce candidates quadratic in the number of tracks. When a
@@ -85,6 +92,52 @@ def candidates(
     return np.concatenate(out_a), np.concatenate(out_b), np.concatenate(out_s)
 
 
+#: bounds of the probability that two vehicles of one lane pass the next sensor in the other
+#: order (their tracks rarely show enough pairs to estimate it closer)
+SWAP_PROB = (0.005, 0.5)
+
+
+def lane_swap_cost(d: Detections, M: np.ndarray) -> float:
+    """Log-odds [nats] against two vehicles of one lane at consecutive sensors passing the
+    second in the other order, from the tracks ``M`` (track x sensor -> detection): over the
+    neighbours in a lane's order at a sensor whose tracks are both seen in that lane at the
+    next, the share that cross (Laplace-smoothed, within ``SWAP_PROB``); 0 without lanes."""
+    if d.lane is None or not np.any(d.lane >= 0):
+        return 0.0
+    crossed = pairs = 0
+    for p in range(M.shape[1] - 1):
+        here, there = M[:, p], M[:, p + 1]
+        both = (here >= 0) & (there >= 0)
+        h, t = here[both], there[both]
+        same = (d.lane[h] >= 0) & (d.lane[h] == d.lane[t])
+        h, t = h[same], t[same]
+        for lane in np.unique(d.lane[h]):
+            k = d.lane[h] == lane
+            order = np.argsort(d.stamp[h[k]], kind='stable')
+            after = d.stamp[t[k]][order]
+            pairs += max(order.size - 1, 0)
+            crossed += int(np.sum(np.diff(after) < 0))
+    prob = float(np.clip((crossed + 1) / (pairs + 2), *SWAP_PROB))
+    return float(np.log((1 - prob) / prob))
+
+
+def _swaps(d: Detections, M: np.ndarray, ca, cb, p: np.ndarray) -> np.ndarray:
+    """Per candidate, +1 where the exchange at the boundary between sensors p and p + 1
+    makes the two tracks cross within one lane, -1 where it makes them uncross, 0 where the
+    four detections are not all in one lane."""
+    n_s = M.shape[1]
+    ok = (p >= 0) & (p + 1 < n_s)
+    pc, qc = np.clip(p, 0, n_s - 1), np.clip(p + 1, 0, n_s - 1)
+    ap, bp, aq, bq = M[ca, pc], M[cb, pc], M[ca, qc], M[cb, qc]
+    ok &= (ap >= 0) & (bp >= 0) & (aq >= 0) & (bq >= 0)
+    lane = d.lane
+    ok &= (lane[ap] >= 0) & (lane[ap] == lane[bp]) & (lane[ap] == lane[aq])
+    ok &= lane[ap] == lane[bq]
+    before = d.stamp[ap] < d.stamp[bp]
+    crossed_now = before != (d.stamp[aq] < d.stamp[bq])
+    return np.where(ok, np.where(crossed_now, -1, 1), 0)
+
+
 def _gains(
     layout: Layout,
     d: Detections,
@@ -95,8 +148,10 @@ def _gains(
     cs: np.ndarray,
     window: int,
     model: str,
+    swap_cost: float = 0.0,
 ) -> np.ndarray:
-    """(n_cand, n_moves) change of NLL of every move of every candidate (< 0 improves)."""
+    """(n_cand, n_moves) change of NLL of every move of every candidate (< 0 improves),
+    ``swap_cost`` [nats] per pair of tracks made to cross within a lane."""
     n_s = M.shape[1]
     has = M >= 0
     first_s = np.where(has.any(axis=1), has.argmax(axis=1), n_s)
@@ -137,9 +192,14 @@ def _gains(
         state=pre.take(owner),
         model=model,
     ).reshape(len(suf), -1)
-    return np.stack(
+    gains = np.stack(
         [nll[2 + 2 * j] + nll[3 + 2 * j] - nll[0] - nll[1] for j in range(len(MOVES))], axis=1
     )
+    if swap_cost > 0:
+        first = _swaps(d, M, ca, cb, cs - 1)
+        for j, k in enumerate(MOVES):
+            gains[:, j] += swap_cost * (first + (_swaps(d, M, ca, cb, cs + k - 1) if k else 0))
+    return gains
 
 
 def refine(
@@ -163,6 +223,7 @@ def refine(
     M[labels[valid], d.sensor_index[valid]] = valid
     dirty = np.ones(n_tracks, bool)
     cur = labels.copy()
+    swap_cost = lane_swap_cost(d, M)
     scored, done, exhausted = 0, 0, False
     for _ in range(rounds):
         ca, cb, cs = candidates(layout, d, cur, params)
@@ -190,6 +251,7 @@ def refine(
                     cs[i : i + CHUNK],
                     window,
                     model,
+                    swap_cost,
                 )
                 for i in range(0, ca.size, CHUNK)
             ]
