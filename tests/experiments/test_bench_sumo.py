@@ -94,6 +94,38 @@ def test_the_peer_runs_on_the_first_dataset_of_the_chosen_large_cells(tmp_path, 
     assert '(dataset 1 of 2)' in text
 
 
+def test_kept_peer_rows_are_not_run_again_and_say_when_they_ran(tmp_path, monkeypatch):
+    """--keep-peer: the peer's row of a cell comes from the last sumo.json (the date of the run
+    that made its cells), the methods run again, and the report says so."""
+    cell = (5, 3)
+    monkeypatch.setitem(sumo.BUDGET, cell, 120.0)
+    monkeypatch.setitem(sumo.LARGE_METHODS, cell, ('assignment',))
+    monkeypatch.setattr(sumo, 'PEER_LARGE', {('highway', 'default', cell): 1})
+    run = {'accuracy': 0.5, 'link_precision': 0.5, 'link_recall': 0.5, 'identity_switches': 1,
+           'adjusted_rand_index': 0.5, 'seconds': 9.0, 'detections': 15}  # fmt: skip
+    row = {'summary': common.summarise([run]), 'status': 'ok', 'runs': [run], 'datasets': 1}
+    previous = {
+        'date': '2026-11-27 12:07 UTC',
+        'cells_run': {'date': '2026-11-26 04:28 UTC'},
+        'cells': [
+            {'scenario': 'highway', 'vehicles': 5, 'stations': 3,
+             'variants': {'time_speed': {common.PEER: row}}},
+        ],
+    }  # fmt: skip
+    kept = sumo.peer_rows(previous)
+    assert kept == {('highway', 'default', 5, 3): {**row, 'ran': '2026-11-26 04:28 UTC'}}
+    ran = []
+    monkeypatch.setattr(sumo, 'run_budgeted', lambda job, n, budget: ran.append(n) or ([], 'ok'))
+    out = sumo.run_sumo(
+        ['assignment'], {cell: 1}, lambda msg: None, tmp_path, extra={}, peer_rows=kept
+    )
+    highway = next(c for c in out['cells'] if c['scenario'] == 'highway')
+    assert highway['variants']['time_speed'][common.PEER] == kept[('highway', 'default', 5, 3)]
+    assert len(ran) == 2 * len(sumo.SCENARIOS)  # assignment, both variants: no peer run
+    text = '\n'.join(sumo.report_lines(out))
+    assert 'rows were kept from the run of 2026-11-26 04:28 UTC' in text
+
+
 def _sleepy_job():
     def job(k: int) -> dict:
         time.sleep(0.1 if k == 0 else 30.0)

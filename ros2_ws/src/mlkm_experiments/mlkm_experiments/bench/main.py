@@ -67,6 +67,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help='part sumo: run only the scenario families, keep the other cells of sumo.json',
     )
     ap.add_argument(
+        '--keep-peer',
+        action='store_true',
+        help="part sumo: take the Stone Soup peer's rows of each cell from sumo.json instead "
+        'of running it again (its input and code are not the product; each kept row says '
+        'when it ran)',
+    )
+    ap.add_argument(
         '--cache-dir',
         type=Path,
         help='keep the generated SUMO datasets here (default: a temporary directory per run)',
@@ -123,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
             args.cache_dir,
             families=sumo_families.plan(quick),
             previous=load('sumo') if args.families_only else None,
+            peer_rows=sumo.peer_rows(load('sumo')) if args.keep_peer else None,
         ),
         'network': lambda: network.run_network(log, quick, args.cache_dir),
         'live': lambda: _run_live(out_dir, log),

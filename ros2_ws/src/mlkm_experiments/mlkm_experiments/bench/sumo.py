@@ -88,12 +88,14 @@ def run_sumo(
     extra: dict | None = None,
     families: dict | None = None,
     previous: dict | None = None,
+    peer_rows: dict | None = None,
 ):
     """Every method (and the peer when Stone Soup is installed) on every scenario and cell,
     then on the ``extra`` cells (default: ``EXTRA_FULL`` with ``SEEDS_FULL``, else
     ``EXTRA_QUICK``), then the scenario families of ``families`` (a ``sumo_families.plan``;
     none without it). With ``previous`` (the part's last JSON: ``--families-only``) only the
-    families run; the other cells are kept from it."""
+    families run; the other cells are kept from it. With ``peer_rows`` (``peer_rows`` of the
+    last JSON: ``--keep-peer``) a cell's peer row is taken from there where it has one."""
     import tempfile
 
     from .peer import PeerConfig, stonesoup_version
@@ -140,9 +142,17 @@ def run_sumo(
             peer_n = PEER_LARGE.get((scenario, measurement, cell), 0) if large else n
             if version is not None and peer_n:
                 cell_methods.append(PEER)
-            out['cells'].append(
-                _run_cell(scenario, measurement, cell, n, cell_methods, cache, log, peer_n)
-            )
+            kept = (peer_rows or {}).get((scenario, measurement, *cell))
+            if kept is not None and PEER in cell_methods:
+                cell_methods.remove(PEER)
+            entry = _run_cell(scenario, measurement, cell, n, cell_methods, cache, log, peer_n)
+            if kept is not None and 'error' not in entry:
+                entry['variants']['time_speed'][PEER] = kept
+                log(
+                    f'sumo {scenario} ({measurement}) {cell[0]}x{cell[1]}: peer row kept from '
+                    f'the run of {kept["ran"]}'
+                )
+            out['cells'].append(entry)
         if families:
             out['families'] = run_families(methods, families, log, cache)
     return out
@@ -217,6 +227,19 @@ def _run_cell(
     return entry
 
 
+def peer_rows(previous: dict) -> dict:
+    """The peer's record of each cell of a ``sumo.json`` by (scenario, measurement, vehicles,
+    stations), each with ``ran``: the date of the run that made it (kept over kept runs)."""
+    ran = (previous.get('cells_run') or {}).get('date') or previous.get('date') or 'unknown'
+    out = {}
+    for c in previous.get('cells', []):
+        rec = c.get('variants', {}).get('time_speed', {}).get(PEER)
+        if rec is not None and 'error' not in c:
+            key = (c['scenario'], c.get('measurement', 'default'), c['vehicles'], c['stations'])
+            out[key] = {**rec, 'ran': rec.get('ran', ran)}
+    return out
+
+
 def find_cell(
     sumo: dict, scenario: str, vehicles: int, stations: int, measurement: str = 'default'
 ) -> dict | None:
@@ -271,6 +294,20 @@ def report_lines(sumo: dict) -> list[str]:
         'finished.',
         '',
     ]
+    kept = sorted(
+        {
+            c['variants']['time_speed'][PEER]['ran']
+            for c in sumo['cells']
+            if 'ran' in c.get('variants', {}).get('time_speed', {}).get(PEER, {})
+        }
+    )
+    if kept:
+        L += [
+            f'The `{PEER}` rows were kept from the run of {", ".join(kept)} '
+            '(`mlkm bench --only sumo --keep-peer`): the peer and its datasets did not change, '
+            'the methods ran again.',
+            '',
+        ]
     extra = sumo.get('extra_cells')
     if extra:
         L += [
