@@ -12,21 +12,23 @@ from mlkm_core.metrics import accuracy
 from mlkm_core.types import Detections
 
 
-def platoon(n: int = 21, crossed: int = 0):
+def platoon(n: int = 21, crossed: int = 0, lanes: int = 2):
     """``n`` vehicles 2 s apart in lane 0 at sensors 0 and 1 (500 m, 20 m/s); the first
-    ``crossed`` neighbour pairs pass sensor 1 in the other order. Tracks: one per vehicle."""
+    ``crossed`` neighbour pairs pass sensor 1 in the other order; with ``lanes`` 2 one more
+    vehicle in lane 1 (the lanes tell vehicles apart). Tracks: one per vehicle of lane 0."""
     t0 = 2.0 * np.arange(n)
     t1 = t0 + 25.0
     for k in range(crossed):
         i = 2 * k
         t1[i], t1[i + 1] = t1[i + 1], t1[i]
+    extra = lanes - 1
     d = Detections(
-        np.repeat([0, 1], n),
-        np.concatenate([t0, t1]),
-        np.full(2 * n, 20.0),
-        target=np.tile(np.arange(n), 2),
-        lane=np.zeros(2 * n, np.int64),
-        length=np.full(2 * n, 4.5),
+        np.concatenate([np.repeat([0, 1], n), np.zeros(extra, np.int64)]),
+        np.concatenate([t0, t1, np.full(extra, 1.0)]),
+        np.full(2 * n + extra, 20.0),
+        target=np.concatenate([np.tile(np.arange(n), 2), np.full(extra, n)]),
+        lane=np.concatenate([np.zeros(2 * n, np.int64), np.ones(extra, np.int64)]),
+        length=np.full(2 * n + extra, 4.5),
     )
     M = np.column_stack([np.arange(n), n + np.arange(n)])  # track x sensor -> detection
     return d, M
@@ -45,6 +47,12 @@ def test_no_lanes_no_price() -> None:
     d, M = platoon()
     plain = Detections(d.sensor_index, d.stamp, d.velocity, target=d.target)
     assert lane_swap_cost(plain, M) == 0.0
+
+
+def test_one_lane_for_every_detection_tells_nothing_and_has_no_price() -> None:
+    """A sensor that reports one lane for all (as the lane cue, ``model.lane.bind``)."""
+    assert lane_swap_cost(*platoon(21, crossed=3, lanes=2)) > 0
+    assert lane_swap_cost(*platoon(21, crossed=3, lanes=1)) == 0.0
 
 
 def test_an_exchange_that_makes_neighbours_cross_is_priced_and_one_that_mends_them_credited():

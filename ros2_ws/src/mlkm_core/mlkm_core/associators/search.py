@@ -101,8 +101,10 @@ def lane_swap_cost(d: Detections, M: np.ndarray) -> float:
     """Log-odds [nats] against two vehicles of one lane at consecutive sensors passing the
     second in the other order, from the tracks ``M`` (track x sensor -> detection): over the
     neighbours in a lane's order at a sensor whose tracks are both seen in that lane at the
-    next, the share that cross (Laplace-smoothed, within ``SWAP_PROB``); 0 without lanes."""
-    if d.lane is None or not np.any(d.lane >= 0):
+    next, the share that cross (Laplace-smoothed, within ``SWAP_PROB``). 0 without lanes, or
+    where every known lane is the same one: then the lane tells no vehicle apart (a sensor
+    that reports one lane for all), as for the lane cue (``model.lane.bind``)."""
+    if d.lane is None or np.unique(d.lane[d.lane >= 0]).size < 2:
         return 0.0
     crossed = pairs = 0
     for p in range(M.shape[1] - 1):
