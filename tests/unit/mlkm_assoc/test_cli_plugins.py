@@ -15,11 +15,11 @@ import sys
 
 import pytest
 
-from mlkm_assoc import cli
+from mlkm_assoc import cli, cli_plugins
 
 
 def _entry(name: str, value: str) -> importlib.metadata.EntryPoint:
-    return importlib.metadata.EntryPoint(name, value, cli.COMMANDS_GROUP)
+    return importlib.metadata.EntryPoint(name, value, cli_plugins.COMMANDS_GROUP)
 
 
 def echo(argv: list[str]) -> int:
