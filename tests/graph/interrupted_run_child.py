@@ -9,17 +9,7 @@ import threading
 import time
 from pathlib import Path
 
-
-def group(pgid: int) -> list[int]:
-    out = []
-    for stat in Path('/proc').glob('[0-9]*/stat'):
-        try:
-            fields = stat.read_text().rsplit(')', 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if int(fields[2]) == pgid and fields[0] != 'Z':
-            out.append(int(stat.parent.name))
-    return out
+from process_group import group
 
 
 def test_hold_a_node_until_killed(ros_process) -> None:

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from process_group import group
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -27,18 +28,6 @@ def alive(pid: int) -> bool:
     except (OSError, IndexError):
         return False
     return state != 'Z'
-
-
-def group(pgid: int) -> list[int]:
-    out = []
-    for stat in Path('/proc').glob('[0-9]*/stat'):
-        try:
-            fields = stat.read_text().rsplit(')', 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if int(fields[2]) == pgid and fields[0] != 'Z':
-            out.append(int(stat.parent.name))
-    return out
 
 
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGKILL], ids=['SIGTERM', 'SIGKILL'])

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import pytest
+from process_group import group
 
 from mlkm_core.associators.base import AssociatorConfig, make_associator
 from mlkm_core.metrics import accuracy
@@ -106,26 +107,10 @@ def ctrl_c(proc: Proc, nodes: tuple[str, ...]) -> None:
         )
     assert 'process has died' not in log, log[-3000:]
     deadline = time.monotonic() + 10.0
-    while _group_alive(proc.pid):
-        assert time.monotonic() < deadline, f'processes of the launch left: {_group(proc.pid)}'
+    while group(proc.pid):
+        assert time.monotonic() < deadline, f'processes of the launch left: {group(proc.pid)}'
         time.sleep(0.1)
     proc.stop()
-
-
-def _group(pgid: int) -> list[str]:
-    out = []
-    for stat in Path('/proc').glob('[0-9]*/stat'):
-        try:
-            fields = stat.read_text().rsplit(')', 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if int(fields[2]) == pgid and fields[0] != 'Z':
-            out.append(stat.parent.name)
-    return out
-
-
-def _group_alive(pgid: int) -> bool:
-    return bool(_group(pgid))
 
 
 def offline_accuracies(config: SimConfig, seed: int, episodes: int, gap: float) -> list[float]:

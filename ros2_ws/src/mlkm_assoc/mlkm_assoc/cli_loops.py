@@ -27,8 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from mlkm_assoc.cli import _output_problem
-from mlkm_core.cli_args import Refused, finite_float, positive_int, refusing, renamed_option
-from mlkm_core.csvout import write_detections
+from mlkm_core.cli_args import (
+    Refused,
+    RefusingParser,
+    finite_float,
+    positive_int,
+    refusing,
+    renamed_option,
+)
+from mlkm_core.csvout import POSITION_DECIMALS, write_detections
 from mlkm_core.layout_file import LayoutFileError, RoadLayout, write_layout_file
 from mlkm_core.loops import covered_span, even_positions, virtual_loops
 from mlkm_core.trajectories import TrajectoryError, read_trajectories
@@ -36,15 +43,6 @@ from mlkm_core.trajectories import TrajectoryError, read_trajectories
 PROG = 'mlkm loops'
 #: Stations when neither --stations nor --stations-at is given [-].
 DEFAULT_STATIONS = 10
-#: Decimals of a station position: the detections CSV's position_m (1 mm).
-POSITION_DECIMALS = 3
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error as this command's one-line error (exit 2)."""
-
-    def error(self, message: str):
-        raise Refused(message)
 
 
 def _positions(text: str) -> list[float]:
@@ -55,7 +53,7 @@ def _positions(text: str) -> list[float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = RefusingParser(
         prog=PROG,
         description='Place virtual loop detectors on vehicle trajectories (trajectory CSV, '
         'NGSIM, SUMO FCD XML) and write what they report as a detections CSV '

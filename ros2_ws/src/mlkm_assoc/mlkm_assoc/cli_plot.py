@@ -25,20 +25,13 @@ import time
 from pathlib import Path
 
 from mlkm_assoc.cli import _output_problem
-from mlkm_core.cli_args import Refused, refusing
+from mlkm_core.cli_args import Refused, RefusingParser, refusing
 
 PROG = 'mlkm plot'
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error as this command's one-line error (exit 2)."""
-
-    def error(self, message: str):
-        raise Refused(message)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = RefusingParser(
         prog=PROG,
         description='Draw the time-space diagram (stations against time; one line per track, '
         'unassigned detections as crosses, wrong links in red where ground truth is known) '

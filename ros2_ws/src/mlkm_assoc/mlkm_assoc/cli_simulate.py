@@ -37,6 +37,7 @@ from mlkm_assoc.cli import _output_problem
 from mlkm_assoc.cli_run import Progress, absolute
 from mlkm_core.cli_args import (
     Refused,
+    RefusingParser,
     non_negative_float,
     positive_float,
     positive_int,
@@ -45,7 +46,7 @@ from mlkm_core.cli_args import (
     renamed_option,
     seed,
 )
-from mlkm_core.csvout import write_detections
+from mlkm_core.csvout import POSITION_DECIMALS, write_detections
 from mlkm_core.layout_file import LayoutFileError, RoadLayout, write_layout_file
 from mlkm_core.simulator import (
     SimConfig,
@@ -58,22 +59,13 @@ from mlkm_core.simulator import (
 from mlkm_core.types import FALSE_ALARM, Detections, Layout
 
 PROG = 'mlkm simulate'
-#: Decimals of a station position: the detections CSV's position_m (1 mm).
-POSITION_DECIMALS = 3
 #: Stream detections between two updates of the progress bar [detections].
 STREAM_TICK = 16_384
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error as this command's one-line error (exit 2)."""
-
-    def error(self, message: str):
-        raise Refused(message)
-
-
 def build_parser() -> argparse.ArgumentParser:
     d = SimConfig()
-    p = _Parser(
+    p = RefusingParser(
         prog=PROG,
         description="Simulate road traffic with the product's simulator (the paper's model) and "
         'write what the stations report as a detections CSV (sensor_id,position_m,stamp_s,'

@@ -113,6 +113,14 @@ class Refused(Exception):
     """A subcommand refuses its input or arguments (``refusing`` prints it as one line)."""
 
 
+class RefusingParser(argparse.ArgumentParser):
+    """argparse that reports a usage error as the subcommand's one-line error (``Refused``:
+    exit 2 through ``refusing``)."""
+
+    def error(self, message: str):
+        raise Refused(message)
+
+
 def refusing(prog: str, run: Callable[[list[str]], int], argv: list[str] | None) -> int:
     """``run(argv)`` (``sys.argv[1:]`` when None); a ``Refused`` becomes one line
     ``PROG: error: ...`` on stderr and exit status 2, with nothing written."""

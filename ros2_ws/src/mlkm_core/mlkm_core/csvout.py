@@ -25,11 +25,17 @@ EOL = '\r\n'
 CHUNK = 65_536
 
 
+#: Decimals of position_m [m], stamp_s [s], velocity_mps [m/s] and length_m [m] by default.
+DECIMALS = (3, 3, 3, 2)
+#: Decimals of a station position (1 mm): a layout written beside the CSV rounds to it.
+POSITION_DECIMALS = DECIMALS[0]
+
+
 def write_detections(
     path: str | Path,
     layout: Layout,
     det: Detections,
-    decimals: tuple[int, int, int, int] = (3, 3, 3, 2),
+    decimals: tuple[int, int, int, int] = DECIMALS,
     progress: Callable[[int], None] | None = None,
 ) -> None:
     """Rows of ``det`` (with truth; lane -1 and length empty where unknown); ``decimals``

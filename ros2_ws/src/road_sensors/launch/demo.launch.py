@@ -12,8 +12,15 @@ which closes the bag. ``association_node`` holds its tracks until the scorer, th
 ``ros2 launch road_sensors demo.launch.py -s`` lists the arguments.
 """
 
-from mlkm_ros.qos import RECORD_EXCLUDE_REGEX
-from road_sensors.launch_graph import association_node, description, flag, node, source_timing
+from road_sensors.launch_graph import (
+    RECORD_ARGUMENTS,
+    association_node,
+    description,
+    flag,
+    node,
+    recorder,
+    source_timing,
+)
 
 ARGUMENTS = (
     ('episodes', '4', 'episodes to simulate [-]'),
@@ -25,8 +32,7 @@ ARGUMENTS = (
     ('method', 'mlkm', 'associator of association_node (mlkm, ...) [-]'),
     ('mode', 'episodes', 'association and scoring: episodes, stream or auto [-]'),
     ('segment_size', '5', 'sensors per road segment K [-]'),
-    ('record', 'true', 'record the graph with bag_recorder (true/false) [-]'),
-    ('bag_dir', '', "bag directory to write; '' = bags/rosbag2_<local time> [-]"),
+    *RECORD_ARGUMENTS,
 )
 
 
@@ -57,10 +63,7 @@ def nodes(context):
             },
         ),
     ]
-    if record:
-        recorder = {'output': arg['bag_dir'], 'exclude_regex': RECORD_EXCLUDE_REGEX}
-        graph.append(node(arg, 'rosbag_mcap', 'bag_recorder', recorder))
-    return graph
+    return [*graph, *recorder(arg)]
 
 
 def generate_launch_description():

@@ -13,8 +13,15 @@ nodes stay up until Ctrl-C, which closes the bag.
 ``ros2 launch road_sensors stream.launch.py -s`` lists the arguments.
 """
 
-from mlkm_ros.qos import RECORD_EXCLUDE_REGEX
-from road_sensors.launch_graph import association_node, description, flag, node, source_timing
+from road_sensors.launch_graph import (
+    RECORD_ARGUMENTS,
+    association_node,
+    description,
+    flag,
+    node,
+    recorder,
+    source_timing,
+)
 
 ARGUMENTS = (
     ('source', 'sumo', 'sumo (sumo_sensors) or sim (sensor_sim continuous) [-]'),
@@ -28,8 +35,7 @@ ARGUMENTS = (
     ('method', 'multiframe', 'stream associator of association_node (stream_method) [-]'),
     ('lag', '30.0', 'links revisable until the newest stamp is this far past [s]'),
     ('window', '30.0', 'scoring window of stamp time [s]'),
-    ('record', 'true', 'record the graph with bag_recorder (true/false) [-]'),
-    ('bag_dir', '', "bag directory to write; '' = bags/rosbag2_<local time> [-]"),
+    *RECORD_ARGUMENTS,
 )
 
 
@@ -63,10 +69,7 @@ def nodes(context):
         node(arg, 'mlkm_assoc', 'scorer_node', {'mode': 'stream', 'window': float(arg['window'])}),
         node(arg, 'road_sensors', executable, source),
     ]
-    if record:
-        recorder = {'output': arg['bag_dir'], 'exclude_regex': RECORD_EXCLUDE_REGEX}
-        graph.append(node(arg, 'rosbag_mcap', 'bag_recorder', recorder))
-    return graph
+    return [*graph, *recorder(arg)]
 
 
 def generate_launch_description():

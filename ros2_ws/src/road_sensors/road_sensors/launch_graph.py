@@ -1,5 +1,6 @@
 """What the launch files (``launch/*.launch.py``) share: each node of a graph with its
-installed defaults and the arguments common to every graph.
+installed defaults, the recorder of the graphs that record themselves and the arguments
+common to every graph.
 
 Only the launch files import this module: ``launch`` and ``launch_ros`` are imported when a
 graph is described, so the nodes themselves never need them.
@@ -19,6 +20,13 @@ COMMON_ARGUMENTS = (
         'association_node waits for before it publishes tracks [-]',
     ),
     ('log_level', 'info', 'log level of every node [-]'),
+)
+
+
+#: arguments of the graphs that record themselves (demo, stream): ``recorder``
+RECORD_ARGUMENTS = (
+    ('record', 'true', 'record the graph with bag_recorder (true/false) [-]'),
+    ('bag_dir', '', "bag directory to write; '' = bags/rosbag2_<local time> [-]"),
 )
 
 
@@ -61,6 +69,17 @@ def source_timing(arg: dict[str, str], record: bool) -> dict[str, Any]:
         'wait_for_subscribers': 1 + record,
         'wait_for_truth_subscribers': 1 + record,
     }
+
+
+def recorder(arg: dict[str, str]) -> list[Any]:
+    """``bag_recorder`` recording every topic but ROS housekeeping into ``bag_dir``; none with
+    ``record:=false``."""
+    from mlkm_ros.qos import RECORD_EXCLUDE_REGEX
+
+    if not flag(arg['record']):
+        return []
+    params = {'output': arg['bag_dir'], 'exclude_regex': RECORD_EXCLUDE_REGEX}
+    return [node(arg, 'rosbag_mcap', 'bag_recorder', params)]
 
 
 def association_node(arg: dict[str, str], own_subscribers: int, params: dict[str, Any]) -> Any:

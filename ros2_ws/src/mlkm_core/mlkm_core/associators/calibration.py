@@ -60,7 +60,8 @@ def _variogram_fit(
         h_all.append((x[lag:] - x[:-lag])[same])
         ahead = v[:-lag][same]  # the speed the vehicle would have if it followed the traffic
         if traffic is not None:
-            a, b = np.flatnonzero(same), np.flatnonzero(same) + lag
+            a = np.flatnonzero(same)
+            b = a + lag
             ahead = 1.0 / (1.0 / ahead + traffic.change(x[a], t[a], x[b], t[b]))
         g_all.append(0.5 * (v[lag:][same] - ahead) ** 2)
     h = np.concatenate(h_all)
