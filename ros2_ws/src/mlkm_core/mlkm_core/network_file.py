@@ -31,8 +31,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mlkm_core.layout_file import load_yaml, road_from_mapping, scalar
+from mlkm_core.layout_file import LayoutFileError, load_yaml, road_from_mapping, scalar
 from mlkm_core.network import RoadNetwork, network_from_mapping, network_to_mapping
+
+
+def is_network_file(path: str | Path) -> bool:
+    """Whether ``path`` holds the network form (a top-level ``links:``); False also for a file
+    that cannot be read (reading it in either form then says why)."""
+    try:
+        doc = load_yaml(Path(path))
+    except LayoutFileError:  # the reader of either form reports it
+        return False
+    return isinstance(doc, dict) and 'links' in doc
 
 
 def read_network_file(path: str | Path) -> RoadNetwork:

@@ -54,10 +54,7 @@ class Layout:
             raise ValueError('a layout needs at least one sensor position')
         if not np.all(np.isfinite(pos)):
             raise ValueError('sensor positions must be finite')
-        if np.any(np.diff(pos) <= 0):
-            raise ValueError('sensor positions must be unique and strictly increasing')
-        if not (self.road_length > 0 and pos[0] >= 0 and pos[-1] <= self.road_length):
-            raise ValueError('sensor positions must lie on the road [0, road_length]')
+        self._check_positions(pos)
         ids = (
             np.arange(pos.size, dtype=np.int64)
             if self.sensor_ids is None
@@ -71,6 +68,13 @@ class Layout:
         object.__setattr__(self, 'positions', pos)
         object.__setattr__(self, 'sensor_ids', ids)
         object.__setattr__(self, 'names', names)
+
+    def _check_positions(self, pos: np.ndarray) -> None:
+        """The road's rule: strictly increasing, on [0, road_length]."""
+        if np.any(np.diff(pos) <= 0):
+            raise ValueError('sensor positions must be unique and strictly increasing')
+        if not (self.road_length > 0 and pos[0] >= 0 and pos[-1] <= self.road_length):
+            raise ValueError('sensor positions must lie on the road [0, road_length]')
 
     @property
     def n_sensors(self) -> int:
