@@ -32,6 +32,7 @@ from visualization_msgs.msg import MarkerArray
 
 from mlkm_assoc.validation import POSITION_TOLERANCE
 from mlkm_core.bounds import Bounds
+from mlkm_core.network_assoc.stations import NetworkStations
 from mlkm_core.types import Layout
 from mlkm_ros import qos
 from mlkm_ros.markers import FRAME, Scene, TrackView, build_markers, clear_all, next_station
@@ -79,7 +80,15 @@ class RoadMarkers:
 
     # --- inputs ---------------------------------------------------------------------------
     def layout(self, layout: Layout) -> None:
-        """A new (valid) layout."""
+        """A new (valid) layout. The stations of a road network are not drawn: the picture
+        is one road's, and a network layout carries no geometry to place its links."""
+        if isinstance(layout, NetworkStations):
+            self._layout, self._index, self._recent = None, {}, []
+            self._passages.clear()
+            if self._shown:
+                self._pub.publish(MarkerArray(markers=[clear_all()]))
+                self._shown = False
+            return
         old = self._layout
         if (
             old is not None

@@ -39,15 +39,40 @@ from mlkm_assoc.modes import ModeSwitch
 from mlkm_assoc.solver import SolverProcess
 from mlkm_assoc.stream_worker import prestart
 from mlkm_core.associators.base import AssociatorConfig
+from mlkm_core.network_assoc.stations import (
+    NetworkStations,
+    network_method_problem,
+    network_stations,
+)
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle, qos
 from mlkm_ros.endpoints import PublisherCheck, no_events
 from mlkm_ros.held_publisher import HeldPublisher
+from mlkm_ros.network_conversions import is_network_msg, msg_to_network
 from mlkm_ros.params import ParameterError, declare_parameters
 from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
 
 DETECTION_TYPE = 'road_sensor_msgs/msg/Detection'
 NS_PER_S = conv.NS_PER_S
+
+
+def read_layout(msg: SensorLayout, mode: str) -> tuple:
+    """(layout, lane counts, entries, exits) of a layout message; ValueError with the reason
+    when it is invalid or when ``mode`` cannot associate it. A road network becomes the
+    :class:`NetworkStations` of its stations (episodes mode only: stream mode follows one
+    road), its entries and exits are the network's (the associator's config has none)."""
+    if is_network_msg(msg):
+        if mode == 'stream':
+            raise ValueError(
+                'a road network; stream mode associates one road (set mode to episodes or auto)'
+            )
+        net = msg_to_network(msg)
+        lanes = tuple(int(n) for n in net.station_lanes) if net.station_lanes.any() else None
+        return network_stations(net), lanes, (), ()
+    layout = conv.layout_from_msg(msg)
+    entries, exits = conv.layout_ramps(msg)
+    AssociatorConfig(entries=entries, exits=exits)  # finite positions
+    return layout, conv.lane_counts_from_msg(msg), entries, exits
 
 
 class AssociationNode(Node):
@@ -154,11 +179,8 @@ class AssociationNode(Node):
     # --- inputs ---------------------------------------------------------------------------
     def _on_layout(self, msg: SensorLayout) -> None:
         try:
-            layout = conv.layout_from_msg(msg)
-            lane_counts = conv.lane_counts_from_msg(msg)
+            layout, lane_counts, entries, exits = read_layout(msg, self._modes.setting)
             wanted = {self.resolve_topic_name(qos.detections_topic(n)) for n in layout.names}
-            entries, exits = conv.layout_ramps(msg)
-            AssociatorConfig(entries=entries, exits=exits)  # finite positions
         except Exception as exc:  # noqa: BLE001 - invalid values or sensor names
             self._assembler.rejected['invalid_layout'] += 1
             self.get_logger().error(
@@ -183,8 +205,16 @@ class AssociationNode(Node):
                 self.destroy_subscription(self._det_subs.pop(topic))
         for topic in sorted(wanted):
             self._subscribe(topic)
+        if isinstance(layout, NetworkStations):
+            net = layout.network
+            where = f'a road network of {len(net.links)} links (episodes mode)'
+            problem = network_method_problem(self._config.method)
+            if problem:
+                self.get_logger().warning(f'{problem}: set the method parameter')
+        else:
+            where = f'{layout.road_length:g} m'
         self.get_logger().info(
-            f'layout: {layout.n_sensors} sensors on {layout.road_length:g} m; '
+            f'layout: {layout.n_sensors} sensors on {where}; '
             f'subscribed to {len(wanted)} detection topics'
         )
 

@@ -45,8 +45,10 @@ from rclpy.node import Node
 from mlkm_assoc.episode_inputs import ScorerConfig, valid_stamp_ns
 from mlkm_assoc.episode_scoring import EpisodeScoring
 from mlkm_assoc.stream_scoring import STREAM_SPECS, StreamScoring
+from mlkm_core.network_assoc.stations import network_stations
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle, qos
+from mlkm_ros.network_conversions import is_network_msg, msg_to_network
 from mlkm_ros.params import ParamSpec, declare_parameters, positive
 from road_sensor_msgs.msg import (
     AssociationScore,
@@ -211,12 +213,24 @@ class ScorerNode(Node):
     # --- inputs ---------------------------------------------------------------------------
     def _on_layout(self, msg: SensorLayout) -> None:
         try:
-            layout = conv.layout_from_msg(msg)
+            # a road network's stations in the message's order, as `mlkm associate --layout`
+            # indexes them; one road's in road order
+            network = is_network_msg(msg)
+            if network:
+                layout = network_stations(msg_to_network(msg))
+            else:
+                layout = conv.layout_from_msg(msg)
             stamp = valid_stamp_ns(msg.header.stamp)
         except ValueError as exc:
             self._reject('invalid_layout', f'layout refused, keeping the previous one: {exc}')
             return
-        key = (layout.road_length, tuple(msg.sensor_ids), layout.names, tuple(msg.positions))
+        key = (
+            layout.road_length,
+            tuple(msg.sensor_ids),
+            layout.names,
+            tuple(msg.positions),
+            tuple(msg.sensor_links),
+        )
         if key == self._layout_key and (stamp == self._layout_ns or stamp <= self._run_ns):
             return
         if self._layout_key is not None:
@@ -224,7 +238,11 @@ class ScorerNode(Node):
             self._new_run(stamp)
         self._layout_key, self._layout_ns = key, stamp
         self._run_ns = max(self._run_ns, stamp)
-        order = np.argsort(np.asarray(msg.positions, dtype=float), kind='stable')
+        order = (
+            range(layout.n_sensors)
+            if network
+            else np.argsort(np.asarray(msg.positions, dtype=float), kind='stable')
+        )
         self._sensor_index = {int(msg.sensor_ids[i]): rank for rank, i in enumerate(order)}
 
     def _on_episode(self, msg: EpisodeInfo) -> None:

@@ -23,7 +23,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mlkm_assoc.episodes import Job, Part
-from mlkm_core.associators.base import Session, make_associator
+from mlkm_core.associators.base import Session
+from mlkm_core.network_assoc.stations import associator_for
 from mlkm_core.types import UNASSIGNED, Detections, Layout
 
 NS_PER_S = 1_000_000_000
@@ -222,7 +223,8 @@ class Solver:
         n_total = sum(p.stamps_ns.size for p in state.fed)
         try:
             if state.session is None:
-                associator = make_associator(job.method, job.associator_config)
+                # a road network's stations get the network method (its docstring)
+                associator = associator_for(job.layout, job.method, job.associator_config)
                 state.session = associator.session(job.layout, job.n_targets)
             labels = np.asarray(state.session.add_segment(to_detections(part)), np.int64)
             if labels.shape != (n_total,):

@@ -89,6 +89,9 @@ def read_bag(bag: str | Path, tracks: Iterable | None = None) -> PlotInput:
         for message in reader.messages(topics=topics):
             msg = decode(message)
             if message.topic == LAYOUT:
+                if len(getattr(msg, 'link_ids', ())):
+                    # positions along different links share no axis
+                    raise ValueError(f'{bag}: a road network; the diagram draws one road')
                 station_of = dict(zip(map(int, msg.sensor_ids), map(float, msg.positions)))
             elif message.topic == TRUTH:
                 stamp = _ns(msg.header.stamp)

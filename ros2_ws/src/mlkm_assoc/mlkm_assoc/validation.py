@@ -137,7 +137,8 @@ class DetectionCheck:
             return True
         if lane < 0:
             return False
-        return self.lane_counts is None or lane < self.lane_counts[s]
+        # a count of 0: a network's station of unknown lanes (RoadNetwork.station_lanes)
+        return self.lane_counts is None or not 0 < self.lane_counts[s] <= lane
 
     def describe(self, reason: str, raw: Received) -> str:
         """One line on a refused detection and why."""

@@ -2,7 +2,9 @@
 
 The log is the product's detections CSV (what ``mlkm associate --input`` reads,
 ``mlkm_core.csvio``), the road a layout file (``mlkm_core.layout_file``: station ids, names,
-positions, lanes, ramps). The node publishes what the other sources publish: the latched
+positions, lanes, ramps) or a road network's (``mlkm_core.network_file``: links, junctions,
+stations on links; the SensorLayout then has its network form, each detection the position
+along its station's link). The node publishes what the other sources publish: the latched
 layout from the layout file (lanes, entries, exits), every valid row of the log on its
 station's topic in stamp order (lane and vehicle length where the log has those columns), and
 the ground truth of every row when the log has a ``target_id`` column (without it the
@@ -38,9 +40,13 @@ import numpy as np
 
 from mlkm_core.csvio import InputError, RowProblem, read_detections
 from mlkm_core.layout_file import LayoutFileError, RoadLayout, read_layout_file
-from mlkm_core.types import UNKNOWN_LANE
+from mlkm_core.network import RoadNetwork
+from mlkm_core.network_assoc.stations import network_stations
+from mlkm_core.network_file import is_network_file, read_network_file
+from mlkm_core.types import UNKNOWN_LANE, Layout
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle
+from mlkm_ros.network_conversions import network_to_msg
 from mlkm_ros.params import ParameterError
 from road_sensors.log_params import SPECS, LogSourceConfig
 from road_sensors.source import SensorSource
@@ -66,7 +72,8 @@ class LogSourceError(ValueError):
 class Replay:
     """A log matched to its layout file, the valid rows in publishing (stamp) order."""
 
-    road: RoadLayout
+    road: RoadLayout | None  # the single road of the layout file, or None on a network
+    network: RoadNetwork | None  # the road network of the layout file, or None
     station: np.ndarray  # station index in the layout file
     stamp_ns: np.ndarray  # published stamp: the log's plus ``shift_s`` [ns], >= 0
     velocity: np.ndarray  # [m/s]
@@ -80,22 +87,40 @@ class Replay:
     columns: tuple[str, ...]  # the optional columns the log has (target_id, lane, length_m)
 
     @property
+    def stations(self) -> Layout:
+        """The stations: the road's, or the network's (``NetworkStations``)."""
+        return self.road.layout if self.network is None else network_stations(self.network)
+
+    @property
+    def lanes(self) -> np.ndarray:
+        """Lanes per station, 0 unknown."""
+        if self.network is None:
+            return np.asarray(self.road.lanes, np.int64)
+        return np.asarray(self.network.station_lanes, np.int64)
+
+    @property
     def n_targets(self) -> int:
         """The largest number of detections at one station."""
         return int(np.bincount(self.station).max())
 
 
 def load_replay(log: str, layout: str) -> Replay:
-    """Read the layout file and the log (invalid rows skipped) and match their sensors;
-    raises LogSourceError (module docstring)."""
+    """Read the layout file (either form: one road or a road network) and the log (invalid
+    rows skipped) and match their sensors; raises LogSourceError (module docstring)."""
+    road, network = None, None
     try:
-        road = read_layout_file(layout)
+        if is_network_file(layout):
+            network = read_network_file(layout)
+        else:
+            road = read_layout_file(layout)
     except LayoutFileError as exc:
         raise LogSourceError(f'layout file {exc}') from None
     try:
-        data = read_detections(log, skip_invalid=True)
+        data = read_detections(log, skip_invalid=True, network=network)
     except InputError as exc:  # InvalidRows too: not one row is valid
         raise LogSourceError(f'log {exc}') from None
+    if network is not None:  # csvio placed every row at its network station
+        return _replay(road, network, data, data.detections.sensor_index)
     by_id = {int(s): i for i, s in enumerate(road.layout.sensor_ids)}
     log_ids = [int(s) for s in data.layout.sensor_ids]
     unknown = [s for s in log_ids if s not in by_id]
@@ -114,9 +139,14 @@ def load_replay(log: str, layout: str) -> Replay:
                 f'log {log}: sensor {sid} is at position_m {x}, the layout file {layout} '
                 f'puts it at {at} m (they may differ by {POSITION_TOLERANCE * 1000:g} mm)'
             )
-    det = data.detections
     to_road = np.array([by_id[s] for s in log_ids], np.int64)
-    station = to_road[det.sensor_index]
+    return _replay(road, None, data, to_road[data.detections.sensor_index])
+
+
+def _replay(road, network, data, station: np.ndarray) -> Replay:
+    """The Replay of ``data`` read from a log, ``station`` the index of each of its
+    detections among the layout file's stations."""
+    det = data.detections
     n = len(det)
     first = float(det.stamp.min())
     shift = math.ceil(-first) if first < 0 else 0
@@ -126,6 +156,7 @@ def load_replay(log: str, layout: str) -> Replay:
     order = np.lexsort((np.arange(n), lane, station, stamp_ns))
     return Replay(
         road=road,
+        network=network,
         station=station[order],
         stamp_ns=np.maximum(stamp_ns[order], 0),
         velocity=det.velocity[order],
@@ -159,18 +190,24 @@ class LogSourceNode(SensorSource):
         cfg: LogSourceConfig = self._config
         self._replay = r = load_replay(cfg.log, cfg.layout)
         self._episodic = cfg.mode == 'episodes'
-        road = r.road
+        road, stations = r.road, r.stations
+        if r.network is not None:
+            layout_msg = network_to_msg(r.network, self._now_ns())
+        else:
+            layout_msg = conv.layout_to_msg(
+                road.layout, self._now_ns(), road.lanes, road.entries, road.exits
+            )
         self._open(
-            road.layout,
+            stations,
             self._episodic,  # a continuous source has no /road/episode publisher
-            conv.layout_to_msg(road.layout, self._now_ns(), road.lanes, road.entries, road.exits),
+            layout_msg,
             truth=r.target is not None,
         )
         log = self.get_logger()
         last = r.stamp_ns[-1] / conv.NS_PER_S - r.shift_s
         log.info(
             f'log {cfg.log}: {r.station.size} detections at {np.unique(r.station).size} of '
-            f'{road.layout.n_sensors} stations ({cfg.layout}), stamps {r.first_stamp:g} .. '
+            f'{stations.n_sensors} stations ({cfg.layout}), stamps {r.first_stamp:g} .. '
             f'{last:g} s, columns: '
             f'{", ".join(r.columns) or "no optional ones"}; '
             + ('one episode' if self._episodic else 'a stream')
@@ -185,7 +222,7 @@ class LogSourceNode(SensorSource):
                 f'negative, so every row is published {r.shift_s} s later (header.stamp = '
                 f'stamp_s + {r.shift_s})'
             )
-        counts = road.lanes[r.station]
+        counts = r.lanes[r.station]
         beyond = int(np.count_nonzero((counts > 0) & (r.lane >= counts)))
         if beyond:
             log.warning(
