@@ -8,7 +8,8 @@ the time lost per connection (``junctions.fit_junctions``) from the travel-time 
 under that motion. Pass 2 links with the fitted model; a
 second round of fitting follows, as the links of pass 1 are those of a cruder model. Where
 the stations report vehicle lengths that vary more than their noise, the length cue links
-with its noise fitted the same way.
+with its noise fitted the same way; where they report lanes, each hop's lane table
+(``lanes``) is learned from the links of the pass.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from mlkm_core.model.motion import MotionParams, trapezoid_residual
 from mlkm_core.network import RoadNetwork
 from mlkm_core.network_assoc.hops import Hops
 from mlkm_core.network_assoc.junctions import JunctionModel, fit_junctions, generic_junctions
+from mlkm_core.network_assoc.lanes import HopLanes, fit_lanes
 from mlkm_core.network_assoc.linking import Links, solve
 from mlkm_core.types import Detections
 
@@ -40,6 +42,7 @@ class NetworkModel:
     motion: MotionParams
     junctions: JunctionModel
     length: LengthParams | None = None  # the length cue's, None where lengths tell nothing
+    lanes: HopLanes | None = None  # the lane cue per hop, None where no lane is reported
 
     def cue(self, d: Detections) -> Cue | None:
         """The length cue bound to ``d`` (None: off)."""
@@ -67,7 +70,8 @@ def fit_model(
     e_t, var_t = trapezoid_residual(p, xa, xb, ta, tb, ua, ub)
     turns = [hops.turns[h] for h in links.hop]
     lengths = fit_lengths(d, links.a, links.b) if d.length is not None else None
-    return NetworkModel(p, fit_junctions(net, turns, e_t, np.sqrt(var_t), links.hop), lengths)
+    junctions = fit_junctions(net, turns, e_t, np.sqrt(var_t), links.hop)
+    return NetworkModel(p, junctions, lengths, fit_lanes(d, links.a, links.b, links.hop))
 
 
 def calibrate_and_link(
@@ -78,5 +82,5 @@ def calibrate_and_link(
     labels, links = solve(hops, d, model.motion, model.junctions, model.cue(d))
     for _ in range(ROUNDS):
         model = fit_model(net, hops, d, links, MotionParams())
-        labels, links = solve(hops, d, model.motion, model.junctions, model.cue(d))
+        labels, links = solve(hops, d, model.motion, model.junctions, model.cue(d), model.lanes)
     return labels, model

@@ -17,7 +17,9 @@ distance, widened by the time lost at its junctions. Its cost is the sum of part
 * the turn: -log of the shares of the connections crossed (``junctions``);
 * misses: the stations the hop passes unseen, each -log p_miss;
 * the vehicle length where the stations report it (``model.length``: the same cue as on one
-  road; a lane index means nothing on another link, so the lane is left out).
+  road);
+* the lane where the stations report it, as the hop's links of a pass show it follows from
+  one station to the next (``lanes``: a lane index means another place on another link).
 
 A track's start costs the new-track cost plus the misses of the stations it must have passed
 unseen since an entry; its end the misses of the stations it would pass before an exit
@@ -36,6 +38,7 @@ from mlkm_core.model.cues import Cue
 from mlkm_core.model.motion import END_MISSES, FLOOR_T, MotionParams, PairwiseModel
 from mlkm_core.network_assoc.hops import Hops
 from mlkm_core.network_assoc.junctions import JunctionModel
+from mlkm_core.network_assoc.lanes import HopLanes
 from mlkm_core.types import Detections
 
 
@@ -78,9 +81,10 @@ def candidates(
     p: MotionParams,
     junctions: JunctionModel,
     cue: Cue | None = None,
+    lanes: HopLanes | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(i, j, cost, hop) of every gated candidate link (module docstring); ``cue`` (bound to
-    ``d``) adds its cost to each."""
+    ``d``) and ``lanes`` add their costs to each."""
     u = 1.0 / d.velocity
     at = [np.flatnonzero(d.sensor_index == s) for s in range(hops.before.size)]
     out_i, out_j, out_c, out_h = [], [], [], []
@@ -113,6 +117,8 @@ def candidates(
             state.grow(i.size)
             state.start(pairs, i)
             cost = cost + state.cost(pairs, j)
+        if lanes is not None:
+            cost = cost + lanes.cost(h, d.lane[i], d.lane[j])
         out_i.append(i)
         out_j.append(j)
         out_c.append(cost)
@@ -130,10 +136,11 @@ def solve(
     p: MotionParams,
     junctions: JunctionModel,
     cue: Cue | None = None,
+    lanes: HopLanes | None = None,
 ) -> tuple[np.ndarray, Links]:
     """Track ids (-1: a detection left alone) and the links made."""
     n = len(d)
-    i, j, cost, hop = candidates(hops, d, p, junctions, cue)
+    i, j, cost, hop = candidates(hops, d, p, junctions, cue, lanes)
     st = d.sensor_index
     start = p.new_cost + np.minimum(hops.before[st], p.max_skip + 1) * p.miss_cost
     end = np.minimum(hops.after[st], END_MISSES) * p.miss_cost

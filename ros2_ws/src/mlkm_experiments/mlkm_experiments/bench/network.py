@@ -2,8 +2,8 @@
 
 Each family cell (``mlkm_sumo.road_networks``: ``interchange``, ``arterial``, ``grid``) runs
 every network method (``mlkm_core.network_assoc.NETWORK_METHODS``) on the datasets of seeds
-1..N, with (time, speed) only and with lane and length (the methods use the length; a lane
-index means nothing on another link). The speed cell associates one large grid (``SPEED``:
+1..N, with (time, speed) only and with lane and length (``assignment`` learns per hop how
+the lane follows, ``gmlkm`` uses neither). The speed cell associates one large grid (``SPEED``:
 2,000 vehicles) with the best method. Every dataset's draw is written into the JSON, so any
 cell can be rebuilt from (family, seed).
 """
