@@ -3,10 +3,12 @@
 Pass 1 links with generic parameters (``MotionParams()``, equal turn shares, a generous time
 lost at every junction). From its links: the pairwise model's own maximum-likelihood fit of the
 motion (``pairwise_fit.fit_links``, on the links that cross no junction where there are
-enough of them, so that red lights do not pass for speed scatter), then the turn shares and
-the time lost per connection (``junctions.fit_junctions``) from the travel-time residuals
-under that motion. Pass 2 links with the fitted model; a
-second round of fitting follows, as the links of pass 1 are those of a cruder model. Where
+enough of them, so that red lights do not pass for speed scatter) and, for each hop with as
+many links as that fit needs, a motion fit of its own (an acceleration lane or a merge
+changes speeds far more than the road before it), then the turn shares and the time lost per
+connection (``junctions.fit_junctions``) from the travel-time residuals under that motion.
+Pass 2 links with the fitted model; a second round of fitting follows, as the links of pass 1
+are those of a cruder model. Where
 the stations report vehicle lengths that vary more than their noise, the length cue links
 with its noise fitted the same way; where they report lanes, each hop's lane table
 (``lanes``) is learned from the links of the pass.
@@ -43,6 +45,7 @@ class NetworkModel:
     junctions: JunctionModel
     length: LengthParams | None = None  # the length cue's, None where lengths tell nothing
     lanes: HopLanes | None = None  # the lane cue per hop, None where no lane is reported
+    per_hop: dict[int, MotionParams] | None = None  # hops with a motion fit of their own
 
     def cue(self, d: Detections) -> Cue | None:
         """The length cue bound to ``d`` (None: off)."""
@@ -66,12 +69,22 @@ def fit_model(
     penalty = 2 * penalty_of(int(links.a.size))
     fit = fit_links(arrays, base, FIT_BOUNDS, FIT_FACTORS, JUMP_GRID, penalty)
     p = base if fit is None else replace(base, **dict(fit))
-    xa, ta, ua, xb, tb, ub = _link_arrays(hops, d, links, np.ones(links.a.size, bool))
-    e_t, var_t = trapezoid_residual(p, xa, xb, ta, tb, ua, ub)
+    per_hop = {}
+    e_t, var_t = np.zeros(links.a.size), np.zeros(links.a.size)
+    for h in np.unique(links.hop):
+        sel = links.hop == h
+        if sel.sum() >= MIN_LINKS:
+            arrays = _link_arrays(hops, d, links, sel)
+            own = fit_links(arrays, p, FIT_BOUNDS, FIT_FACTORS, JUMP_GRID, penalty)
+            if own is not None:
+                per_hop[int(h)] = replace(p, **dict(own))
+        xa, ta, ua, xb, tb, ub = _link_arrays(hops, d, links, sel)
+        e_t[sel], var_t[sel] = trapezoid_residual(per_hop.get(int(h), p), xa, xb, ta, tb, ua, ub)
     turns = [hops.turns[h] for h in links.hop]
     lengths = fit_lengths(d, links.a, links.b) if d.length is not None else None
     junctions = fit_junctions(net, turns, e_t, np.sqrt(var_t), links.hop)
-    return NetworkModel(p, junctions, lengths, fit_lanes(d, links.a, links.b, links.hop))
+    lanes = fit_lanes(d, links.a, links.b, links.hop)
+    return NetworkModel(p, junctions, lengths, lanes, per_hop)
 
 
 def calibrate_and_link(
@@ -82,5 +95,7 @@ def calibrate_and_link(
     labels, links = solve(hops, d, model.motion, model.junctions, model.cue(d))
     for _ in range(ROUNDS):
         model = fit_model(net, hops, d, links, MotionParams())
-        labels, links = solve(hops, d, model.motion, model.junctions, model.cue(d), model.lanes)
+        labels, links = solve(
+            hops, d, model.motion, model.junctions, model.cue(d), model.lanes, model.per_hop
+        )
     return labels, model

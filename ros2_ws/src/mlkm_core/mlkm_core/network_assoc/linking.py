@@ -82,6 +82,7 @@ def candidates(
     junctions: JunctionModel,
     cue: Cue | None = None,
     lanes: HopLanes | None = None,
+    per_hop: dict[int, MotionParams] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(i, j, cost, hop) of every gated candidate link (module docstring); ``cue`` (bound to
     ``d``) and ``lanes`` add their costs to each."""
@@ -95,20 +96,21 @@ def candidates(
         dist = float(hops.distance[h])
         turns = hops.turns[h]
         shift, spread = junctions.lost(h, turns)
+        ph = p if per_hop is None else per_hop.get(h, p)
         rows = np.arange(a.size)
-        m = PairwiseModel(p)
+        m = PairwiseModel(ph)
         m.grow(a.size)
         m.start(rows, 0.0, d.stamp[a], u[a])
         centre, half = m.gate_window(m.predict(rows, dist))
-        half = np.sqrt(half * half + p.gate * spread)
+        half = np.sqrt(half * half + ph.gate * spread)
         r, c = gate_pairs(centre + shift, half, d.stamp[b])
         i, j = a[r], b[c]
         keep = d.stamp[j] > d.stamp[i]
         i, j = i[keep], j[keep]
         if i.size == 0:
             continue
-        nll, d2 = hop_cost(p, dist, d.stamp[i], u[i], d.stamp[j] - shift, u[j], spread)
-        ok = np.isfinite(nll) & (d2 <= p.gate)
+        nll, d2 = hop_cost(ph, dist, d.stamp[i], u[i], d.stamp[j] - shift, u[j], spread)
+        ok = np.isfinite(nll) & (d2 <= ph.gate)
         i, j = i[ok], j[ok]
         cost = nll[ok] + hops.skipped[h] * p.miss_cost + junctions.turn_cost(turns)
         if cue is not None:
@@ -137,10 +139,11 @@ def solve(
     junctions: JunctionModel,
     cue: Cue | None = None,
     lanes: HopLanes | None = None,
+    per_hop: dict[int, MotionParams] | None = None,
 ) -> tuple[np.ndarray, Links]:
     """Track ids (-1: a detection left alone) and the links made."""
     n = len(d)
-    i, j, cost, hop = candidates(hops, d, p, junctions, cue, lanes)
+    i, j, cost, hop = candidates(hops, d, p, junctions, cue, lanes, per_hop)
     st = d.sensor_index
     start = p.new_cost + np.minimum(hops.before[st], p.max_skip + 1) * p.miss_cost
     end = np.minimum(hops.after[st], END_MISSES) * p.miss_cost
