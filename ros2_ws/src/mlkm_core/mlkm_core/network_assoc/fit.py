@@ -8,10 +8,9 @@ many links as that fit needs, a motion fit of its own (an acceleration lane or a
 changes speeds far more than the road before it), then the turn shares and the time lost per
 connection (``junctions.fit_junctions``) from the travel-time residuals under that motion.
 Pass 2 links with the fitted model; a second round of fitting follows, as the links of pass 1
-are those of a cruder model. Where
-the stations report vehicle lengths that vary more than their noise, the length cue links
-with its noise fitted the same way; where they report lanes, each hop's lane table
-(``lanes``) is learned from the links of the pass.
+are those of a cruder model. Where the stations report vehicle lengths that vary more than
+their noise, the length cue links with its noise fitted the same way; where they report
+lanes, each hop's lane table (``lanes``) is learned from the links of the pass.
 """
 
 from __future__ import annotations
