@@ -72,3 +72,31 @@ def test_the_targets_on_hand_made_results():
         'network speed: 2000 vehicles associate in < 60 s': False,
     }
     assert network.network_targets({})[0]['met'] is None
+
+
+def test_stone_soup_on_a_network_follows_two_vehicles_that_swap_at_a_diverge():
+    pytest.importorskip('stonesoup')
+    import numpy as np
+
+    from mlkm_core.network import RoadLink, RoadNetwork
+    from mlkm_core.types import Detections
+    from mlkm_experiments.bench.peer_network import stonesoup_network_associate
+
+    # link 0 splits into links 1 and 2; stations 2 and 3 stand at the same offset on them,
+    # so only the hop's distance from the track's last station places a detection
+    net = RoadNetwork(
+        links=(RoadLink(0, 'in', 1000.0), RoadLink(1, 'left', 600.0), RoadLink(2, 'right', 600.0)),
+        connections=((0, 1), (0, 2)),
+        station_ids=np.arange(4),
+        station_names=('a', 'b', 'c', 'd'),
+        station_links=np.array([0, 0, 1, 2]),
+        station_offsets=np.array([300.0, 800.0, 200.0, 200.0]),
+    )
+    # A (20 m/s) turns left; B (25 m/s) overtakes it on link 0 and turns right
+    rows = [(0, 0.0, 20.0, 0), (1, 25.0, 20.0, 0), (2, 45.0, 20.0, 0),
+            (0, 2.0, 25.0, 1), (1, 22.0, 25.0, 1), (3, 38.0, 25.0, 1)]  # fmt: skip
+    s, t, v, k = (np.array(c) for c in zip(*rows, strict=True))
+    d = Detections(s.astype(np.int64), t.astype(float), v.astype(float), k.astype(np.int64))
+    labels = stonesoup_network_associate(net, d)
+    assert labels[0] == labels[1] == labels[2] >= 0
+    assert labels[3] == labels[4] == labels[5] >= 0 and labels[0] != labels[3]

@@ -4,8 +4,10 @@ Each family cell (``mlkm_sumo.road_networks``: ``interchange``, ``arterial``, ``
 every network method (``mlkm_core.network_assoc.NETWORK_METHODS``) on the datasets of seeds
 1..N, with (time, speed) only and with lane and length (``assignment`` learns per hop how
 the lane follows, ``gmlkm`` uses neither). The speed cell associates one large grid (``SPEED``:
-2,000 vehicles) with the best method. Every dataset's draw is written into the JSON, so any
-cell can be rebuilt from (family, seed).
+2,000 vehicles) with the best method. Stone Soup (``peer_network``: set up as on one road,
+the network's reach given to it as a hypothesiser) runs on every full cell, once per dataset
+(it uses time and speed only), not in ``--quick`` runs (tens of seconds per dataset). Every
+dataset's draw is written into the JSON, so any cell can be rebuilt from (family, seed).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from types import SimpleNamespace
 
 from mlkm_core.types import Detections
 
-from .common import Log, pct, score_row, summarise
+from .common import PEER, Log, pct, score_row, summarise
 
 FAMILIES = ('interchange', 'arterial', 'grid')
 SEEDS_FULL = 3
@@ -55,8 +57,13 @@ def _dataset(family: str, seed: int, overrides: dict, cache_dir: Path | None):
 def _row(net, d: Detections, method: str) -> dict:
     from mlkm_core.network_assoc import associate_network
 
+    from .peer_network import stonesoup_network_associate
+
     t0 = time.perf_counter()
-    labels = associate_network(net, d, method)
+    if method == PEER:
+        labels = stonesoup_network_associate(net, _variant(d, 'time_speed'))
+    else:
+        labels = associate_network(net, d, method)
     return score_row(SimpleNamespace(detections=d), labels, time.perf_counter() - t0)
 
 
@@ -64,7 +71,10 @@ def run_network(log: Log, quick: bool, cache_dir: Path | None = None) -> dict:
     """Every network method on every family cell, both variants; the speed cell."""
     from mlkm_core.network_assoc import NETWORK_METHODS
 
+    from .peer import stonesoup_version
+
     methods = list(NETWORK_METHODS)
+    peer = [PEER] if stonesoup_version() and not quick else []
     seeds = list(range(1, (SEEDS_QUICK if quick else SEEDS_FULL) + 1))
     cells = []
     for family in FAMILIES:
@@ -92,8 +102,21 @@ def run_network(log: Log, quick: bool, cache_dir: Path | None = None) -> dict:
                     f'network {family:12s} {variant:11s} {m:12s} {100 * s["accuracy_mean"]:7.3f}%'
                     f' n={s["n"]} ({sum(r["seconds"] for r in rows):.1f} s)'
                 )
+        for m in peer:  # time and speed only: one run serves both variants
+            rows = [_row(n, d, m) for _, n, d in sets]
+            s = summarise(rows)
+            for variant in VARIANTS:
+                cell['variants'][variant][m] = {'summary': s, 'runs': rows}
+            log(
+                f'network {family:12s} {"both":11s} {m:12s} {100 * s["accuracy_mean"]:7.3f}%'
+                f' n={s["n"]} ({sum(r["seconds"] for r in rows):.1f} s)'
+            )
         cells.append(cell)
-    out: dict = {'cells': cells, 'methods': methods, 'published_gmlkm': PUBLISHED_GMLKM}
+    out: dict = {
+        'cells': cells,
+        'methods': methods + peer,
+        'published_gmlkm': PUBLISHED_GMLKM,
+    }
     if not quick:
         family, seed, overrides = SPEED
         _, net, d = _dataset(family, seed, overrides, cache_dir)
@@ -130,7 +153,9 @@ def report_lines(net: dict) -> list[str]:
         '(`mlkm_sumo.road_networks`): a freeway interchange, a signalised arterial, a small '
         "grid. Cells: mean accuracy [%] (min..max) over the seeds. G-MLKM's authors report "
         f'{100 * net["published_gmlkm"]:.1f} % on their own simulated networks (published '
-        'reference, not rerun here).',
+        'reference, not rerun here). `stonesoup` is Stone Soup set up as on one road, the '
+        "network's reach given to it as a hypothesiser (`bench/peer_network.py`); it uses "
+        'time and speed only, so both columns show its one run.',
         '',
         '| family | stations | detections | method | '
         + ' | '.join(VARIANT_LABELS[v] for v in VARIANTS)
