@@ -2,7 +2,7 @@
 form): a hand-made diverge where two vehicles swap order and take different roads, so that
 the right tracks are certain; detections checked against their station's position along its
 link and its lane count; a method that does not associate networks reports every detection
-unassigned; stream mode refuses a network layout with its reason.
+unassigned; stream mode ends with the same two tracks once the road falls quiet.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from mlkm_core.network import RoadLink, RoadNetwork
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
 from mlkm_ros.network_conversions import network_to_msg
-from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
+from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, Track, TrackArray
 
 pytestmark = pytest.mark.ros
 
@@ -168,8 +168,31 @@ def test_a_method_of_one_road_reports_every_detection_unassigned(harness) -> Non
     )
 
 
-def test_stream_mode_refuses_a_network_layout_with_its_reason(harness) -> None:
-    h = harness(mode='stream')
+def test_stream_mode_on_a_network_ends_with_the_two_tracks(harness) -> None:
+    # stream mode (the harness's /road/episode publisher would make auto take episodes); the
+    # road falls quiet for `lag` seconds of wall time, so every track is committed and FINAL
+    h = harness(mode='stream', lag=1.0)
     h.layout_pub.publish(network_to_msg(NETWORK, 0))
-    h.wait(lambda: h.node.assembler.rejected['invalid_layout'] == 1)
-    assert h.node.assembler.layout is None
+    h.wait(lambda: all(p.get_subscription_count() >= 1 for p in h.det_pubs))
+    for s, t, v, lane in sorted(A + B, key=lambda p: p[1]):
+        h.detect(s, t, v, lane)
+    latest: dict[int, Track] = {}
+
+    def final() -> bool:
+        for msg in h.tracks:
+            assert msg.mode == TrackArray.MODE_STREAM
+            for track in msg.tracks:
+                latest[track.track_id] = track
+        h.tracks.clear()
+        done = [t for t in latest.values() if t.status == Track.STATUS_FINAL and t.sensor_ids]
+        return sum(len(t.sensor_ids) for t in done) == len(A) + len(B)
+
+    h.wait(final)
+    done = [t for t in latest.values() if t.status == Track.STATUS_FINAL and t.sensor_ids]
+    msg = TrackArray(tracks=done)
+    assert tracks_of(msg) == sorted(
+        [
+            [(IDS[s], t, float(NETWORK.station_offsets[s])) for s, t, _, _ in A],
+            [(IDS[s], t, float(NETWORK.station_offsets[s])) for s, t, _, _ in B],
+        ]
+    )

@@ -61,13 +61,28 @@ def test_each_vehicle_is_one_track_across_the_diverge(tmp_path, capsys, method):
         (['12,300.0,0.0,20.0,0'], ASSIGNMENT, 'line 2: sensor 12 at position_m 300.0, but the '
          'network puts it at 200 m along link 1'),
         (ROWS, ['--method', 'mlkm'], '--method mlkm does not associate road networks'),
-        (ROWS, ['--method', 'assignment', '--stream'], '--stream: not with --layout'),
+        (ROWS, ['--method', 'gmlkm', '--stream'],
+         '--stream on a road network links with --method assignment'),
+        (ROWS, ['--method', 'assignment', '--targets', '2'], '--targets: not with --layout'),
     ],
 )  # fmt: skip
 def test_what_does_not_fit_the_network_is_refused(tmp_path, capsys, rows, extra, message):
     assert main([*write(tmp_path, rows), *extra]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / 'out.csv').exists()
+
+
+def test_the_network_stream_through_the_cli(tmp_path, capsys):
+    assert main([*write(tmp_path), '--method', 'assignment', '--stream']) == 0
+    out = capsys.readouterr().out
+    assert (
+        '6 detections from 4 sensors -> 2 tracks (assignment, road network of 3 links, '
+        'stream, lag 15 s' in out
+    )
+    assert 'accuracy: 100.00 % (6/6)' in out
+    # the two first detections started tracks of their own before any model was fitted;
+    # the first window left them alone, then the immediate links joined them to their vehicle
+    assert 'revision rate: 33.33 % (2 of 6 first-published links changed' in out
 
 
 def test_a_network_method_needs_the_layout(tmp_path, capsys):

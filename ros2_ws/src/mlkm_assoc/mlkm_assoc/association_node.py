@@ -56,16 +56,11 @@ DETECTION_TYPE = 'road_sensor_msgs/msg/Detection'
 NS_PER_S = conv.NS_PER_S
 
 
-def read_layout(msg: SensorLayout, mode: str) -> tuple:
+def read_layout(msg: SensorLayout) -> tuple:
     """(layout, lane counts, entries, exits) of a layout message; ValueError with the reason
-    when it is invalid or when ``mode`` cannot associate it. A road network becomes the
-    :class:`NetworkStations` of its stations (episodes mode only: stream mode follows one
-    road), its entries and exits are the network's (the associator's config has none)."""
+    when it is invalid. A road network becomes the :class:`NetworkStations` of its stations,
+    its entries and exits are the network's (the associator's config has none)."""
     if is_network_msg(msg):
-        if mode == 'stream':
-            raise ValueError(
-                'a road network; stream mode associates one road (set mode to episodes or auto)'
-            )
         net = msg_to_network(msg)
         lanes = tuple(int(n) for n in net.station_lanes) if net.station_lanes.any() else None
         return network_stations(net), lanes, (), ()
@@ -179,7 +174,7 @@ class AssociationNode(Node):
     # --- inputs ---------------------------------------------------------------------------
     def _on_layout(self, msg: SensorLayout) -> None:
         try:
-            layout, lane_counts, entries, exits = read_layout(msg, self._modes.setting)
+            layout, lane_counts, entries, exits = read_layout(msg)
             wanted = {self.resolve_topic_name(qos.detections_topic(n)) for n in layout.names}
         except Exception as exc:  # noqa: BLE001 - invalid values or sensor names
             self._assembler.rejected['invalid_layout'] += 1
@@ -207,9 +202,9 @@ class AssociationNode(Node):
             self._subscribe(topic)
         if isinstance(layout, NetworkStations):
             net = layout.network
-            where = f'a road network of {len(net.links)} links (episodes mode)'
+            where = f'a road network of {len(net.links)} links'
             problem = network_method_problem(self._config.method)
-            if problem:
+            if problem and self._modes.mode != 'stream':
                 self.get_logger().warning(f'{problem}: set the method parameter')
         else:
             where = f'{layout.road_length:g} m'

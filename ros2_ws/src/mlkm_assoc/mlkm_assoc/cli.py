@@ -44,6 +44,7 @@ import numpy as np
 
 from mlkm_assoc.cli_network import associate as associate_on_network
 from mlkm_assoc.cli_network import load_network, needs_network
+from mlkm_assoc.cli_network import stream_config as network_stream_config
 from mlkm_assoc.cli_plugins import (
     BUILTIN,
     one_line_warnings,
@@ -147,7 +148,8 @@ def cmd_associate(args: argparse.Namespace) -> int:
             net, problem = load_network(args)
             if problem:
                 return _error(problem)
-            associator, stream = None, None
+            associator = None
+            stream = network_stream_config(args) if args.stream else None
         elif needs_network(args.method):
             return _error(needs_network(args.method))
         else:
@@ -209,13 +211,13 @@ def cmd_associate(args: argparse.Namespace) -> int:
     n_targets = args.targets or int(np.bincount(dets.sensor_index).max())
     t0 = time.perf_counter()
     try:
-        if net is not None:
-            labels = associate_on_network(net, dets, args.method, args.seed)
-        elif stream is None:
-            labels = run_batch(associator, data, n_targets, progress)
-        else:
-            streamed = run_stream(data, stream, args.entries, args.exits, progress)
+        if stream is not None:
+            streamed = run_stream(data, stream, args.entries, args.exits, progress, net)
             labels = streamed.labels
+        elif net is not None:
+            labels = associate_on_network(net, dets, args.method, args.seed)
+        else:
+            labels = run_batch(associator, data, n_targets, progress)
     except ValueError as exc:
         return _error(f'{args.method} cannot associate this input: {exc}')
     elapsed = time.perf_counter() - t0
@@ -234,7 +236,9 @@ def cmd_associate(args: argparse.Namespace) -> int:
     n_tracks = np.unique(labels[labels >= 0]).size
     mode = f'stream, lag {stream.lag:g} s' if stream else f'{n_targets} targets'
     if net is not None:
-        mode = f'road network of {len(net.links)} links'
+        mode = f'road network of {len(net.links)} links' + (
+            f', stream, lag {streamed.stats["lag"]:.0f} s' if stream else ''
+        )
     print(
         f'{len(dets)} detections from {n_sensors} sensors -> {n_tracks} tracks '
         f'({args.method}, {mode}, {elapsed:.1f} s) written to {args.output}'

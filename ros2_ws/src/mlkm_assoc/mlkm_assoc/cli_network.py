@@ -3,8 +3,10 @@
 The layout file in its network form (``mlkm_core.network_file``: links, connections,
 stations on links) places the rows' stations by their ``sensor_id``; the association is a
 network method (``mlkm_core.network_assoc.NETWORK_METHODS``). What the single road's options
-mean there: ``--method`` one of the network methods, ``--seed`` as on one road; ``--stream``,
-``--entries`` / ``--exits`` (the file gives the network's entries and exits), ``--targets`` and
+mean there: ``--method`` one of the network methods, ``--seed`` as on one road; ``--stream
+[--lag S]`` pushes the rows in stamp order through the network's stream
+(``mlkm_core.network_assoc.stream``, which links with ``assignment``); ``--entries`` /
+``--exits`` (the file gives the network's entries and exits), ``--targets`` and
 ``--segment-size`` do not apply and are refused when given.
 """
 
@@ -14,6 +16,9 @@ import argparse
 from pathlib import Path
 
 from mlkm_core.network import RoadNetwork
+
+#: the method the network stream links with
+STREAM_METHOD = 'assignment'
 
 
 def load_network(args: argparse.Namespace) -> tuple[RoadNetwork | None, str | None]:
@@ -33,7 +38,6 @@ def load_network(args: argparse.Namespace) -> tuple[RoadNetwork | None, str | No
     given = [
         flag
         for flag, on in (
-            ('--stream', args.stream),
             ('--entries', bool(args.entries)),
             ('--exits', bool(args.exits)),
             ('--targets', args.targets is not None),
@@ -44,10 +48,18 @@ def load_network(args: argparse.Namespace) -> tuple[RoadNetwork | None, str | No
     if given:
         return None, (
             f'{", ".join(given)}: not with --layout (on a road network the layout file gives '
-            'the entries and exits, the network methods need no number of targets and have no '
-            'stream form yet)'
+            'the entries and exits, and the network methods need no number of targets)'
         )
+    if args.stream and args.method != STREAM_METHOD:
+        return None, f'--stream on a road network links with --method {STREAM_METHOD}'
     return net, None
+
+
+def stream_config(args: argparse.Namespace):
+    """The network stream's settings: ``--lag``."""
+    from mlkm_core.network_assoc.stream import NetworkStreamConfig
+
+    return NetworkStreamConfig(lag=args.lag)
 
 
 def needs_network(method: str) -> str | None:

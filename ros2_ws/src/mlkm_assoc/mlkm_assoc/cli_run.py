@@ -176,12 +176,18 @@ def run_stream(
     entries: tuple[float, ...] = (),
     exits: tuple[float, ...] = (),
     progress: Progress | None = None,
+    network=None,
 ) -> StreamResult:
-    """Push the valid detections in stamp order (ties by station, then row) and flush."""
+    """Push the valid detections in stamp order (ties by station, then row) and flush; on a
+    road network (``network``, ``config`` a ``NetworkStreamConfig``) through its stream."""
+    from mlkm_core.network_assoc.stream import NetworkStreamTracker
     from mlkm_core.streaming import StreamTracker
 
     d = data.detections
-    tracker = StreamTracker(data.layout, config, entries, exits)
+    if network is not None:
+        tracker = NetworkStreamTracker(network, config)
+    else:
+        tracker = StreamTracker(data.layout, config, entries, exits)
     row_of = np.flatnonzero(data.row_detection >= 0)  # detection -> data row (the key)
     det_of = {int(r): i for i, r in enumerate(row_of)}
     order = np.lexsort((row_of, d.sensor_index, d.stamp))

@@ -58,7 +58,6 @@ class ModeSwitch:
         self._episode_topic = node.resolve_topic_name(qos.EPISODE_TOPIC)
         self.mode: str | None = None if mode == 'auto' else mode
         self._layout: tuple | None = None
-        self.network = False  # the layout is a road network's stations
         self.stream: StreamMode | None = None
         self.switches = 0
         # auto, before any layout: (sensor id, stamp ns, position, velocity, lane, length,
@@ -75,16 +74,10 @@ class ModeSwitch:
 
     # --- inputs from the node -------------------------------------------------------------
     def layout(self, msg: SensorLayout, layout, lane_counts) -> None:
-        """A new layout (already validated). The stations of a road network are associated
-        in episodes mode only (stream mode follows one road): ``auto`` switches to it, and a
-        continuous source's detections on a network are then refused as outside_episode."""
-        self.network = isinstance(layout, NetworkStations)
-        if self.network:
-            self._layout = (layout, lane_counts, (), ())
-            if self.mode != EPISODES:
-                self._switch(EPISODES, 'a road network is associated in episodes')
-            return
-        entries, exits = conv.layout_ramps(msg)
+        """A new layout (already validated). The entries and exits of a road network are in
+        its stations' layout (``NetworkStations``), not positions along one road."""
+        network = isinstance(layout, NetworkStations)
+        entries, exits = ((), ()) if network else conv.layout_ramps(msg)
         self._layout = (layout, lane_counts, entries, exits)
         if self.stream is not None:
             self.stream.set_layout(*self._layout)
@@ -159,8 +152,6 @@ class ModeSwitch:
             return 0
 
     def _decide(self) -> None:
-        if self.network:
-            return  # episodes mode, whatever the source
         has_source = self._episode_publishers() > 0
         if self.mode is None and self._layout is None and not has_source:
             return  # no layout and no sign of episodes: detections wait for the layout

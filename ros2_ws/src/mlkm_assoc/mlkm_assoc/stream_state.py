@@ -118,15 +118,21 @@ class TrackerState:
         FINAL); the first road of the process announces its run with an empty TrackArray,
         which tells consumers that the tracks of a run before a restart have ended."""
         answer = self.flush(time.monotonic()) if self._tracker is not None else None
+        from mlkm_core.network_assoc.stations import NetworkStations
+        from mlkm_core.network_assoc.stream import NetworkStreamConfig, NetworkStreamTracker
         from mlkm_core.streaming import StreamTracker
 
-        self._tracker = StreamTracker(
-            layout,
-            self._settings.stream_config(),
-            entries=entries,
-            exits=exits,
-            executor=self._executor,
-        )
+        if isinstance(layout, NetworkStations):  # a road network: its own stream
+            config = NetworkStreamConfig(lag=self._settings.lag)
+            self._tracker = NetworkStreamTracker(layout.network, config)
+        else:
+            self._tracker = StreamTracker(
+                layout,
+                self._settings.stream_config(),
+                entries=entries,
+                exits=exits,
+                executor=self._executor,
+            )
         self.run = max(time.time_ns() // 1000, self._next_id)
         self._layout = layout
         self._reorder = ReorderBuffer(layout.n_sensors)
