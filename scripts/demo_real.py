@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 from mlkm_assoc.timespace_plot import plot_beside_bag
-from mlkm_ros.log_graph import mlkm, offline, run_log_graph
+from mlkm_ros.log_graph import mlkm, offline, run_dirs, run_log_graph
 from mlkm_ros.processes import format_scores, replay_hint
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,13 +72,10 @@ def build_log(args: argparse.Namespace, log: Path, layout: Path) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    stamp = time.strftime('demo_real_%Y%m%d_%H%M%S', time.gmtime())
-    bag_dir = (args.bag_dir or ROOT / 'bags' / stamp).resolve()
-    if bag_dir.exists():
-        print(f'demo-real: {bag_dir} exists already; choose another --bag-dir', file=sys.stderr)
+    dirs = run_dirs('demo-real', args.bag_dir, ROOT / 'bags')
+    if dirs is None:
         return 2
-    log_dir = bag_dir.parent / 'logs' / bag_dir.name
-    log_dir.mkdir(parents=True, exist_ok=True)
+    bag_dir, log_dir = dirs
     log, layout = log_dir / 'i80_loops.csv', log_dir / 'i80_loops.layout.yaml'
     t0 = time.monotonic()
     try:

@@ -19,16 +19,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
+from score_listener import Listener
 
 from mlkm_core.csvout import write_detections
 from mlkm_core.layout_file import RoadLayout, write_layout_file
 from mlkm_core.loops import even_positions, virtual_loops
 from mlkm_core.trajectories import read_trajectories
 from mlkm_core.types import Layout
-from mlkm_ros import qos
-from road_sensor_msgs.msg import AssociationScore, EpisodeInfo, SensorLayout
+from road_sensor_msgs.msg import EpisodeInfo
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -37,32 +35,9 @@ POSITION_DECIMALS = 3
 DATA = Path(__file__).resolve().parents[2] / 'data' / 'ngsim_i80' / 'i80_trajectories_a.csv.gz'
 
 
-class Listener:
-    """Receives scores, the layout and the episode infos."""
-
-    def __init__(self, context) -> None:
-        self.node = Node('log_test_listener', context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self.scores: dict[int, AssociationScore] = {}
-        self.layout: list[SensorLayout] = []
-        self.infos: list[EpisodeInfo] = []
-        sub = self.node.create_subscription
-        sub(AssociationScore, qos.SCORE_TOPIC, self._on_score, qos.SCORE_QOS)
-        sub(SensorLayout, qos.LAYOUT_TOPIC, self.layout.append, qos.LAYOUT_QOS)
-        sub(EpisodeInfo, qos.EPISODE_TOPIC, self.infos.append, qos.EPISODE_QOS)
-
-    def _on_score(self, msg: AssociationScore) -> None:
-        self.scores[msg.episode_id] = msg
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-
-
 @pytest.fixture
 def listener(rclpy_context):
-    lst = Listener(rclpy_context)
+    lst = Listener(rclpy_context, 'log_test_listener')
     yield lst
     lst.close()
 
@@ -119,10 +94,7 @@ def test_ngsim_log_live_equals_offline_cli(
     )
     done = spin_until(
         listener.executor,
-        lambda: (
-            0 in listener.scores
-            and any(i.status == EpisodeInfo.STATUS_ENDED for i in listener.infos)
-        ),
+        lambda: 0 in listener.scores and listener.ended(),
         90.0,
     )
     assert done, source.output() + assoc.output() + scorer.output()

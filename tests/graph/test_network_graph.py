@@ -13,11 +13,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-
-from mlkm_ros import qos
-from road_sensor_msgs.msg import AssociationScore, EpisodeInfo, SensorLayout
+from score_listener import Listener
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -43,30 +39,9 @@ def network_log(repo_root, tmp_path_factory) -> tuple[Path, Path]:
     return log, layout
 
 
-class Listener:
-    def __init__(self, context) -> None:
-        self.node = Node('network_test_listener', context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self.scores: dict[int, AssociationScore] = {}
-        self.layout: list[SensorLayout] = []
-        self.infos: list[EpisodeInfo] = []
-        sub = self.node.create_subscription
-        sub(AssociationScore, qos.SCORE_TOPIC, self._on_score, qos.SCORE_QOS)
-        sub(SensorLayout, qos.LAYOUT_TOPIC, self.layout.append, qos.LAYOUT_QOS)
-        sub(EpisodeInfo, qos.EPISODE_TOPIC, self.infos.append, qos.EPISODE_QOS)
-
-    def _on_score(self, msg: AssociationScore) -> None:
-        self.scores[msg.episode_id] = msg
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-
-
 @pytest.fixture
 def listener(rclpy_context):
-    lst = Listener(rclpy_context)
+    lst = Listener(rclpy_context, 'network_test_listener')
     yield lst
     lst.close()
 
@@ -95,11 +70,7 @@ def test_network_log_live_equals_offline_cli(
     )
     done = spin_until(
         listener.executor,
-        lambda: (
-            0 in listener.scores
-            and any(i.status == EpisodeInfo.STATUS_ENDED for i in listener.infos)
-            and listener.layout
-        ),
+        lambda: 0 in listener.scores and listener.ended() and listener.layout,
         120.0,
     )
     assert done, source.output() + assoc.output() + scorer.output()

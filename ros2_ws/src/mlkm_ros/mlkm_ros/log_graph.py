@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import re
 import subprocess
+import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,6 +55,20 @@ def offline(log: Path, method: str, out: Path, *more: str) -> tuple[float, int, 
     if m is None:
         raise RuntimeError(f'mlkm associate printed no accuracy:\n{run.stdout}')
     return float(m.group(1)) / 100.0, int(m.group(2)), int(m.group(3))
+
+
+def run_dirs(label: str, given: Path | None, bags: Path) -> tuple[Path, Path] | None:
+    """(the bag to write, the directory of its log, layout file and node logs) of a demo run:
+    ``given`` or ``bags/<label>_<UTC time>``, the logs in ``<bag>/../logs/<bag name>``; None
+    (said why) when the bag exists already."""
+    stamp = time.strftime(f'{label.replace("-", "_")}_%Y%m%d_%H%M%S', time.gmtime())
+    bag_dir = (given or bags / stamp).resolve()
+    if bag_dir.exists():
+        print(f'{label}: {bag_dir} exists already; choose another --bag-dir', file=sys.stderr)
+        return None
+    log_dir = bag_dir.parent / 'logs' / bag_dir.name
+    log_dir.mkdir(parents=True, exist_ok=True)
+    return bag_dir, log_dir
 
 
 def recorder_args(bag_dir: Path) -> list[str]:

@@ -77,17 +77,13 @@ def stonesoup_associate(
     every update of every track ever held; detections in unconfirmed tracks are UNASSIGNED.
     """
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
-    from stonesoup.deleter.time import UpdateTimeDeleter
     from stonesoup.hypothesiser.distance import DistanceHypothesiser
-    from stonesoup.initiator.simple import MultiMeasurementInitiator
     from stonesoup.measures import Mahalanobis
     from stonesoup.models.measurement.linear import LinearGaussian
     from stonesoup.models.transition.linear import ConstantVelocity
     from stonesoup.predictor.kalman import KalmanPredictor
-    from stonesoup.tracker.simple import MultiTargetTracker
-    from stonesoup.types.array import CovarianceMatrix, StateVector
+    from stonesoup.types.array import StateVector
     from stonesoup.types.detection import Detection
-    from stonesoup.types.state import GaussianState
     from stonesoup.updater.kalman import KalmanUpdater
 
     sx = max(cfg.v_nominal * stamp_noise, cfg.floor_position)
@@ -115,6 +111,20 @@ def stonesoup_associate(
                 },
             )
         )
+    return run_tracker(scans, len(det), mm, updater, assoc, cfg, sx, sv)
+
+
+def run_tracker(scans, n: int, mm, updater, assoc, cfg: PeerConfig, sx: float, sv: float):
+    """Stone Soup's multi-target tracker over ``scans`` ((time, {detection}) in time order,
+    each detection's metadata holding its ``index`` among ``n``), with the two-point initiator
+    and the deleter of ``cfg``; the label of each detection: the track whose update took it,
+    numbered by their first update, -1 for detections in unconfirmed tracks."""
+    from stonesoup.deleter.time import UpdateTimeDeleter
+    from stonesoup.initiator.simple import MultiMeasurementInitiator
+    from stonesoup.tracker.simple import MultiTargetTracker
+    from stonesoup.types.array import CovarianceMatrix, StateVector
+    from stonesoup.types.state import GaussianState
+
     gap = dt.timedelta(seconds=cfg.delete_after)
     prior = GaussianState(
         StateVector([[0.0], [cfg.v_nominal]]), CovarianceMatrix(np.diag([sx**2, sv**2]))
@@ -137,11 +147,10 @@ def stonesoup_associate(
     seen: set = set()
     for _, tracks in tracker:
         seen |= tracks
-    labels = np.full(len(det), -1, dtype=np.int64)
+    labels = np.full(n, -1, dtype=np.int64)
     for k, tr in enumerate(sorted(seen, key=lambda t: t.states[0].timestamp)):
         for st in tr.states:
-            h = getattr(st, 'hypothesis', None)
-            m = getattr(h, 'measurement', None)
+            m = getattr(getattr(st, 'hypothesis', None), 'measurement', None)
             if m is not None and 'index' in m.metadata:
                 labels[m.metadata['index']] = k
     return labels

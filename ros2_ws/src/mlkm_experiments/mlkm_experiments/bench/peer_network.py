@@ -34,7 +34,7 @@ from mlkm_core.network import RoadNetwork
 from mlkm_core.network_assoc import MAX_SKIP, network_hops
 from mlkm_core.types import Detections
 
-from .peer import PeerConfig
+from .peer import PeerConfig, run_tracker
 
 #: the longest wait at a junction the network model allows before its fit [s]
 LONGEST_WAIT = 90.0
@@ -62,18 +62,14 @@ def stonesoup_network_associate(
     (module docstring); -1 for detections in unconfirmed tracks."""
     from stonesoup.base import Property
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
-    from stonesoup.deleter.time import UpdateTimeDeleter
     from stonesoup.hypothesiser.base import Hypothesiser
     from stonesoup.hypothesiser.distance import DistanceHypothesiser
-    from stonesoup.initiator.simple import MultiMeasurementInitiator
     from stonesoup.measures import Mahalanobis
     from stonesoup.models.measurement.linear import LinearGaussian
     from stonesoup.models.transition.linear import ConstantVelocity
     from stonesoup.predictor.kalman import KalmanPredictor
-    from stonesoup.tracker.simple import MultiTargetTracker
-    from stonesoup.types.array import CovarianceMatrix, StateVector
+    from stonesoup.types.array import StateVector
     from stonesoup.types.detection import Detection
-    from stonesoup.types.state import GaussianState
     from stonesoup.updater.kalman import KalmanUpdater
 
     class Passage(Detection):
@@ -141,35 +137,7 @@ def stonesoup_network_associate(
                 },
             )  # fmt: skip
         )
-    gap = dt.timedelta(seconds=cfg.delete_after)
-    prior = GaussianState(
-        StateVector([[0.0], [cfg.v_nominal]]), CovarianceMatrix(np.diag([sx**2, sv**2]))
-    )
-    init = MultiMeasurementInitiator(
-        prior_state=prior,
-        measurement_model=mm,
-        deleter=UpdateTimeDeleter(gap),
-        data_associator=assoc,
-        updater=updater,
-        min_points=cfg.min_points,
-    )
-    tracker = MultiTargetTracker(
-        initiator=init,
-        deleter=UpdateTimeDeleter(gap),
-        detector=scans,
-        data_associator=assoc,
-        updater=updater,
-    )
-    seen: set = set()
-    for _, tracks in tracker:
-        seen |= tracks
-    labels = np.full(len(det), -1, dtype=np.int64)
-    for k, tr in enumerate(sorted(seen, key=lambda t: t.states[0].timestamp)):
-        for st in tr.states:
-            m = getattr(getattr(st, 'hypothesis', None), 'measurement', None)
-            if m is not None and 'index' in m.metadata:
-                labels[m.metadata['index']] = k
-    return labels
+    return run_tracker(scans, len(det), mm, updater, assoc, cfg, sx, sv)
 
 
 def _last_measurement(track):
