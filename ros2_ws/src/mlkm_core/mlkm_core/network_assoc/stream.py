@@ -15,7 +15,7 @@ and the (key, track) pairs committed), by a simpler mechanism that the network m
 * **The model** (``fit.calibrate_and_link``: motion, hops' own motion, turns, time lost, lane
   and length cues) is fitted on the window with the most recent committed detections
   (``calibration_size``), again every ``calibration_every`` solves, and carried in between;
-  while it was fitted on fewer rows than ``calibration_size``, at every solve.
+  while it was fitted on fewer rows than ``warmup_rows``, at every solve.
 * **Stitching.** Committed links never change. A window track holding committed detections
   continues the committed track of its latest one, if that track has not been continued by
   a later committed detection; its uncommitted detections join it. A window track without
@@ -111,8 +111,8 @@ class NetworkStreamTracker:
         self._counts: Counter[str] = Counter()
         self._revised: set[int] = set()  # held keys moved after their first track
         self._model: NetworkModel | None = None
-        self._fitted_on = 0  # rows the model was fitted on: below calibration_size, every
-        # solve fits it again (the first windows of a road filling up hold few links)
+        self._fitted_on = 0  # rows the model was fitted on: below warmup_rows, every solve
+        # fits it again (the first windows of a road filling up hold few links)
         self._solves = 0
         self._next_id = 0
         self._boundary: float | None = None
@@ -240,7 +240,7 @@ class NetworkStreamTracker:
             return
         d = self._detections(keys)
         rows = list(self._history) + [self._det[k] for k in keys]
-        young = self._fitted_on < self.config.calibration_size
+        young = self._fitted_on < self.config.warmup_rows
         if young or self._solves % self.config.calibration_every == 0:
             _, self._model = calibrate_and_link(self.net, self._hops, _detections(rows))
             self._fitted_on = len(rows)
