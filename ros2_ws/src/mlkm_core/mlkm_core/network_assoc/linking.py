@@ -83,13 +83,14 @@ def candidates(
     cue: Cue | None = None,
     lanes: HopLanes | None = None,
     per_hop: dict[int, MotionParams] | None = None,
+    only: list[int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(i, j, cost, hop) of every gated candidate link (module docstring); ``cue`` (bound to
-    ``d``) and ``lanes`` add their costs to each."""
+    ``d``) and ``lanes`` add their costs to each; ``only``: these hops alone."""
     u = 1.0 / d.velocity
     at = [np.flatnonzero(d.sensor_index == s) for s in range(hops.before.size)]
     out_i, out_j, out_c, out_h = [], [], [], []
-    for h in range(hops.size):
+    for h in range(hops.size) if only is None else only:
         a, b = at[hops.src[h]], at[hops.dst[h]]
         if a.size == 0 or b.size == 0:
             continue

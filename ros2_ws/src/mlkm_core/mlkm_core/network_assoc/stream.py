@@ -98,8 +98,10 @@ class NetworkStreamTracker:
         self._hops = network_hops(net, MAX_SKIP)
         # station -> the stations a vehicle can be seen at next (the hops' ends)
         self._reach: list[set[int]] = [set() for _ in range(net.n_stations)]
-        for a, b in zip(self._hops.src.tolist(), self._hops.dst.tolist(), strict=True):
+        self._into: list[list[int]] = [[] for _ in range(net.n_stations)]  # hops ending there
+        for h, (a, b) in enumerate(zip(self._hops.src.tolist(), self._hops.dst.tolist())):
             self._reach[a].add(b)
+            self._into[b].append(h)
         # key -> (station, stamp, speed, lane, length) of the detections still held
         self._det: dict[int, tuple[int, float, float, int, float]] = {}
         self._track: dict[int, int] = {}  # key -> its track, -1 unassigned (held ones)
@@ -177,7 +179,7 @@ class NetworkStreamTracker:
             d = _detections([self._det[k] for _, k in tails] + [self._det[key]])
             cue = m.cue(d)
             i, j, cost, _ = candidates(
-                self._hops, d, m.motion, m.junctions, cue, m.lanes, m.per_hop
+                self._hops, d, m.motion, m.junctions, cue, m.lanes, m.per_hop, self._into[station]
             )
             to_new = j == len(tails)  # the links into the new detection
             i, cost = i[to_new], cost[to_new]
