@@ -80,7 +80,11 @@ def test_ngsim_log_live_equals_offline_cli(
     log, layout, n = ngsim_log
     correct, total = offline_cli(repo_root, log, method, tmp_path / 'tracks.csv')
     assert total == n == 800  # 80 vehicles seen at all 10 stations
-    assoc = ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', f'method:={method}')
+    # the tracks wait for the scorer's reader (a busy machine may match it late)
+    assoc = ros_process(
+        'mlkm_assoc', 'association_node', '--ros-args', '-p', f'method:={method}',
+        '-p', 'wait_for_track_subscribers:=1',
+    )  # fmt: skip
     scorer = ros_process('mlkm_assoc', 'scorer_node')
     source = ros_process(
         'road_sensors',

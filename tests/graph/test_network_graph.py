@@ -58,7 +58,11 @@ def test_network_log_live_equals_offline_cli(
     m = ACCURACY.search(printed)
     assert m, printed
     correct, total = int(m.group(1)), int(m.group(2))
-    assoc = ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=assignment')
+    # the tracks wait for the scorer's reader (a busy machine may match it late)
+    assoc = ros_process(
+        'mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=assignment',
+        '-p', 'wait_for_track_subscribers:=1',
+    )  # fmt: skip
     scorer = ros_process('mlkm_assoc', 'scorer_node')
     source = ros_process(
         'road_sensors',

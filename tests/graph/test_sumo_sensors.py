@@ -161,7 +161,12 @@ def test_episodes_live_equal_offline_cli(
     ros_process, listener, spin_until, tmp_path, repo_root
 ) -> None:
     expected = offline_cli(tmp_path, repo_root)
-    assoc = ros_process('mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=mlkm')
+    # the tracks wait for the scorer's reader: a final published before the scorer matched
+    # /mlkm/tracks on a busy machine would be lost to it
+    assoc = ros_process(
+        'mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=mlkm',
+        '-p', 'wait_for_track_subscribers:=1',
+    )  # fmt: skip
     scorer = ros_process('mlkm_assoc', 'scorer_node')
     sumo = ros_process(
         'road_sensors',
