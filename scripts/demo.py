@@ -26,10 +26,10 @@ from mlkm_ros.processes import (
     ScoreCollector,
     domain,
     format_scores,
+    recorder_args,
     replay_hint,
     start_association,
 )
-from mlkm_ros.qos import RECORD_EXCLUDE_REGEX
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,17 +49,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument('--timeout', type=float, default=100.0, help='give up after [s] (100)')
     return p.parse_args(argv)
-
-
-def recorder_args(bag_dir: Path) -> list[str]:
-    """Record every topic of the graph but the ROS housekeeping ones."""
-    return [
-        '--ros-args',
-        '-p',
-        f'output:={bag_dir}',
-        '-p',
-        f'exclude_regex:={RECORD_EXCLUDE_REGEX}',
-    ]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -26,8 +26,14 @@ import time
 from pathlib import Path
 
 from mlkm_assoc.timespace_plot import plot_beside_bag
-from mlkm_ros.processes import Graph, ScoreCollector, domain, replay_hint, start_association
-from mlkm_ros.qos import RECORD_EXCLUDE_REGEX
+from mlkm_ros.processes import (
+    Graph,
+    ScoreCollector,
+    domain,
+    recorder_args,
+    replay_hint,
+    start_association,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 NS_PER_S = 1_000_000_000
@@ -51,16 +57,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--bag-dir', type=Path, default=None, help='bag to write')
     p.add_argument('--timeout', type=float, default=170.0, help='give up after [s] (170)')
     return p.parse_args(argv)
-
-
-def recorder_args(bag_dir: Path) -> list[str]:
-    return [
-        '--ros-args',
-        '-p',
-        f'output:={bag_dir}',
-        '-p',
-        f'exclude_regex:={RECORD_EXCLUDE_REGEX}',
-    ]
 
 
 def start_stream_graph(

@@ -18,7 +18,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from mlkm_ros.processes import Graph, ScoreCollector, domain, executable, start_association
+from mlkm_ros.processes import (
+    Graph,
+    ScoreCollector,
+    domain,
+    executable,
+    recorder_args,
+    start_association,
+)
 
 ACCURACY = re.compile(r'accuracy: ([\d.]+) % \((\d+)/(\d+)\)')
 
@@ -69,17 +76,6 @@ def run_dirs(label: str, given: Path | None, bags: Path) -> tuple[Path, Path] | 
     log_dir = bag_dir.parent / 'logs' / bag_dir.name
     log_dir.mkdir(parents=True, exist_ok=True)
     return bag_dir, log_dir
-
-
-def recorder_args(bag_dir: Path) -> list[str]:
-    """Record every topic of the graph but the ROS housekeeping ones."""
-    return [
-        '--ros-args',
-        '-p',
-        f'output:={bag_dir}',
-        '-p',
-        'exclude_regex:=^/(rosout|parameter_events)$',
-    ]
 
 
 def run_log_graph(

@@ -309,6 +309,20 @@ class Graph:
         self.stop_all()
 
 
+def recorder_args(bag_dir: Path) -> list[str]:
+    """The bag_recorder's arguments: every topic of the graph into ``bag_dir`` but the ROS
+    housekeeping ones."""
+    from mlkm_ros.qos import RECORD_EXCLUDE_REGEX  # rclpy's QoS: not needed by the rest
+
+    return [
+        '--ros-args',
+        '-p',
+        f'output:={bag_dir}',
+        '-p',
+        f'exclude_regex:={RECORD_EXCLUDE_REGEX}',
+    ]
+
+
 def start_association(
     graph: Graph,
     collector: ScoreCollector,
