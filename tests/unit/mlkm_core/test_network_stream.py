@@ -1,11 +1,13 @@
 """The network's fixed-lag stream (``network_assoc.stream``) on hand-made traffic through a
 junction: a lag longer than the traffic equals the batch association; with a short lag every
 detection is committed exactly once, a committed link never changes, the tracks end FINAL
-with all their detections; a detection older than the commit horizon is committed alone."""
+with all their detections; a detection older than the commit horizon is committed alone; window
+solves run beside the stream (an executor that answers late, or fails) commit the same."""
 
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -42,13 +44,46 @@ def traffic(n: int, seed: int = 0) -> Detections:
     return Detections(s.astype(np.int64), tt, vv, kk.astype(np.int64))
 
 
-def stream(d: Detections, config: NetworkStreamConfig):
+class LateExecutor:
+    """Runs each job it is given (pickled and unpickled, as the node's solver process gets
+    it) but reports it done only ``delay`` pushes later, or when its result is waited for;
+    ``fail``: every job raises."""
+
+    def __init__(self, delay: int, fail: bool = False) -> None:
+        self.delay, self.fail, self.submitted, self.clock = delay, fail, 0, 0
+
+    def submit(self, fn, *args) -> LateFuture:
+        fn, args = pickle.loads(pickle.dumps((fn, args)))
+        self.submitted += 1
+        return LateFuture(self, self.clock + self.delay, lambda: fn(*args))
+
+    def tick(self) -> None:
+        """One push went by."""
+        self.clock += 1
+
+
+class LateFuture:
+    def __init__(self, executor: LateExecutor, due: int, run) -> None:
+        self.executor, self.due, self.run = executor, due, run
+
+    def done(self) -> bool:
+        return self.executor.clock >= self.due
+
+    def result(self):
+        if self.executor.fail:
+            raise RuntimeError('solver gone')
+        return self.run()
+
+
+def stream(d: Detections, config: NetworkStreamConfig, executor=None):
     """(labels committed, every update) of pushing ``d`` in stamp order and flushing; each
     push's update shows the pushed detection in a track (its immediate link)."""
-    tracker = NetworkStreamTracker(NET, config)
+    tracker = NetworkStreamTracker(NET, config, executor)
     labels = np.full(len(d), -2, np.int64)
     updates = []
     for i in np.lexsort((np.arange(len(d)), d.sensor_index, d.stamp)).tolist():
+        if executor is not None:
+            executor.tick()
         updates.append(tracker.push(i, int(d.sensor_index[i]), float(d.stamp[i]),
                                     float(d.velocity[i])))  # fmt: skip
         assert any(i in t.keys for t in updates[-1].tracks)
@@ -92,6 +127,32 @@ def test_a_short_lag_commits_each_detection_once_and_never_revises_a_commit():
     # once a model is there, the immediate link joins most detections to their vehicle's
     # track at once: each vehicle starts one track, and few detections more start one
     assert tracker.stats()['started'] < 1.2 * 300
+
+
+@pytest.mark.parametrize('fail', [False, True])
+def test_solves_beside_the_stream_commit_what_solves_inside_it_commit(fail):
+    d = traffic(300, seed=1)
+    cfg = NetworkStreamConfig(lag=20.0, warmup_rows=300)
+    inline, _, _ = stream(d, cfg)
+    executor = LateExecutor(delay=7, fail=fail)
+    beside, updates, tracker = stream(d, cfg, executor)
+    assert executor.submitted > 10  # the windows went to the executor
+    assert (beside > -2).all()
+    # the same tracks (ids are numbered as tracks start, which the immediate links decide)
+    assert np.array_equal(beside < 0, inline < 0)
+    pairs = set(zip(beside.tolist(), inline.tolist()))
+    assert len(pairs) == len(set(beside.tolist())) == len(set(inline.tolist()))
+    stats = tracker.stats()
+    assert stats['executor_errors'] == (stats['solves'] if fail else 0)
+    # pushes during a solve in flight still returned with their detection in a track (checked
+    # in ``stream``); the tracks end FINAL holding exactly their committed detections
+    last = {}
+    for u in updates:
+        for t in u.tracks:
+            last[t.track_id] = t
+    for tid in np.unique(beside[beside >= 0]).tolist():
+        assert last[tid].status == FINAL
+        assert sorted(last[tid].keys.tolist()) == np.flatnonzero(beside == tid).tolist()
 
 
 def test_a_detection_older_than_the_commit_horizon_is_committed_alone():

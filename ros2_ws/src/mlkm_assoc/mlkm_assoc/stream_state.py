@@ -124,7 +124,7 @@ class TrackerState:
 
         if isinstance(layout, NetworkStations):  # a road network: its own stream
             config = NetworkStreamConfig(lag=self._settings.lag)
-            self._tracker = NetworkStreamTracker(layout.network, config)
+            self._tracker = NetworkStreamTracker(layout.network, config, self._executor)
         else:
             self._tracker = StreamTracker(
                 layout,
