@@ -86,6 +86,9 @@ def filled(name: str):
             sensor_links=[0, 0, U32_MAX],
             entry_links=[U32_MAX],
             exit_links=[0, U32_MAX],
+            link_shape_sizes=[2, 3],
+            link_shape_x=[0.0, 800.0, -1.5e6, 0.25, 3.0],
+            link_shape_y=[0.0, 0.0, 4.0e6, -7.75, 3.0],
         )
     if name == 'EpisodeInfo':
         return cls(

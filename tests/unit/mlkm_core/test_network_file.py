@@ -157,6 +157,9 @@ def doc(links=f'[{LINK}]', stations=f'[{STATION}]', extra=''):
         (doc(extra='exits: [{link: 0, position_m: 101}]\n'), 'exit on link 0 at 101 m: off'),
         (doc(extra='exits: {link: 0}\n'), 'exits: a list is needed'),
         (doc(extra='entries: [[0, 1]]\n'), r'entries\[0\]: expected a mapping'),
+        (doc(links='[{id: 0, length_m: 5, shape_m: [[0, 0]]}]'), r'links\[0\]: link 0: a sh'),
+        (doc(links='[{id: 0, length_m: 5, shape_m: [1, 2]}]'), 'shape must be a list of'),
+        (doc(links='[{id: 0, length_m: 5, shape_m: [[1, 2], [1, 2]]}]'), 'has no length'),
     ],
 )
 def test_each_refusal_names_the_file_and_entry(tmp_path, text, message):
@@ -165,6 +168,29 @@ def test_each_refusal_names_the_file_and_entry(tmp_path, text, message):
     with pytest.raises(LayoutFileError, match=message) as exc:
         read_network_file(path)
     assert str(exc.value).startswith(f'{path}: ')
+
+
+def test_link_shapes_round_trip_and_place_points_along_the_link(tmp_path):
+    text = doc(links='[{id: 0, length_m: 100, shape_m: [[0, 0], [30, 40], [30, 90]]}]')
+    path = tmp_path / 'shaped.yaml'
+    path.write_text(text)
+    n = read_network_file(path)
+    link = n.links[0]
+    assert link.shape == ((0.0, 0.0), (30.0, 40.0), (30.0, 90.0))
+    # the polyline is 100 m long: 25 m along is half the first leg, heading atan2(40, 30)
+    x, y, heading = link.point_at(25.0)
+    assert (x, y) == pytest.approx((15.0, 20.0)) and heading == pytest.approx(0.9272952)
+    assert link.point_at(75.0)[:2] == pytest.approx((30.0, 65.0))
+    assert link.point_at(500.0)[:2] == pytest.approx((30.0, 90.0))  # clamped to the end
+    write_network_file(tmp_path / 'out.yaml', n)
+    assert read_network_file(tmp_path / 'out.yaml') == n
+    assert 'shape_m' not in network_to_mapping(read_network_file_text(tmp_path, doc()))['links'][0]
+
+
+def read_network_file_text(tmp_path, text):
+    path = tmp_path / 'plain.yaml'
+    path.write_text(text)
+    return read_network_file(path)
 
 
 def test_a_missing_or_broken_file(tmp_path):

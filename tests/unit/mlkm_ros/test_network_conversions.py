@@ -147,3 +147,48 @@ def test_a_bad_single_road_message_is_refused_as_before():
     msg = conv.layout_to_msg(Layout(100.0, np.array([10.0, 20.0])), 0, [1, 0])
     with pytest.raises(ValueError, match='lane_counts must be >= 1'):
         msg_to_network(msg)
+
+
+def shaped() -> RoadNetwork:
+    """The interchange with its links drawn: main_in bends at (400, 0)."""
+    shapes = {
+        0: ((0.0, 0.0), (400.0, 0.0), (400.0, 400.0)),
+        1: ((400.0, 400.0), (400.0, 1300.0)),
+        2: ((400.0, 400.0), (700.0, 400.0)),
+        7: ((0.0, 650.0), (400.0, 400.0)),
+    }
+    net = interchange()
+    links = tuple(RoadLink(k.link_id, k.name, k.length, k.lanes, shapes[k.link_id])
+                  for k in net.links)  # fmt: skip
+    return RoadNetwork(links, net.connections, net.station_ids, net.station_names,
+                       net.station_links, net.station_offsets, net.station_lanes,
+                       net.entries, net.exits)  # fmt: skip
+
+
+def test_link_shapes_round_trip():
+    msg = cdr(network_to_msg(shaped(), 5))
+    assert list(msg.link_shape_sizes) == [3, 2, 2, 2]
+    assert list(msg.link_shape_x)[:3] == [0.0, 400.0, 400.0]
+    assert list(msg.link_shape_y)[-2:] == [650.0, 400.0]
+    back = msg_to_network(msg)
+    assert back == shaped() and back != interchange()
+    assert back.links[0].point_at(600.0)[:2] == (400.0, 200.0)  # 600 m of 800 along the bend
+    # a network without shapes sends none
+    assert list(cdr(network_to_msg(interchange(), 5)).link_shape_sizes) == []
+
+
+@pytest.mark.parametrize(
+    ('fields', 'words'),
+    [
+        ({'link_shape_sizes': [3, 2]}, 'link_shape_sizes has 2 entries for 4 links'),
+        ({'link_shape_sizes': [3, 2, 2, 3]}, 'add up to 10 points, link_shape_x holds 9'),
+        ({'link_shape_y': [0.0]}, 'link_shape_x 9, link_shape_y 1'),
+        ({'link_shape_sizes': [3, 2, 3, 1]}, 'link 7: a shape needs at least 2 finite'),
+    ],
+)
+def test_bad_link_shapes_are_refused_with_the_reason(fields, words):
+    msg = network_to_msg(shaped(), 5)
+    for name, value in fields.items():
+        setattr(msg, name, value)
+    with pytest.raises(ValueError, match=words):
+        msg_to_network(cdr(msg))

@@ -116,6 +116,9 @@ def make_messages(store):
                 sensor_links=np.array([], dtype=np.uint32),
                 entry_links=np.array([], dtype=np.uint32),
                 exit_links=np.array([], dtype=np.uint32),
+                link_shape_sizes=np.array([], dtype=np.uint32),
+                link_shape_x=np.array([], dtype=np.float64),
+                link_shape_y=np.array([], dtype=np.float64),
             ),
         )
     ]

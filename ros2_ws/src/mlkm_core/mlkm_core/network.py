@@ -21,7 +21,6 @@ plain data (what a YAML file holds).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -29,10 +28,11 @@ import numpy as np
 
 from mlkm_core import network_checks as check
 from mlkm_core.layout_file import NAME, LayoutFileError, RoadLayout, finite, unknown_keys
+from mlkm_core.network_links import RoadLink, default_link_name
 from mlkm_core.network_paths import StationStep, first_steps, free_reach, steps_from
 from mlkm_core.types import Layout, default_sensor_name
 
-LINK_KEYS = ('id', 'name', 'length_m', 'lanes')
+LINK_KEYS = ('id', 'name', 'length_m', 'lanes', 'shape_m')
 STATION_KEYS = ('id', 'name', 'link', 'position_m', 'lanes')
 POINT_KEYS = ('link', 'position_m')
 STATION_FIELDS = (
@@ -43,36 +43,6 @@ STATION_FIELDS = (
     'station_lanes',
 )
 TOP_KEYS = ('links', 'connections', 'entries', 'exits', 'stations')
-
-
-def default_link_name(link_id: int) -> str:
-    """The name of a link that has none: its ROS topic token."""
-    return f'link_{link_id}'
-
-
-@dataclass(frozen=True)
-class RoadLink:
-    """One directed road section, travelled from 0 to ``length``."""
-
-    link_id: int  # unique over the network, >= 0
-    name: str  # one ROS topic name token
-    length: float  # [m], > 0
-    lanes: int = 0  # lanes of the section, 0 = unknown
-
-    def __post_init__(self) -> None:
-        if isinstance(self.link_id, bool) or not isinstance(self.link_id, int | np.integer):
-            raise ValueError(f'link id must be an integer, got {self.link_id!r}')
-        if self.link_id < 0:
-            raise ValueError(f'link id must be >= 0, got {self.link_id}')
-        if not isinstance(self.name, str) or not NAME.match(self.name):
-            raise ValueError(f'link {self.link_id}: name {self.name!r} is not a topic name token')
-        if not (math.isfinite(self.length) and self.length > 0):
-            raise ValueError(f'link {self.link_id}: length must be finite and > 0 m')
-        if self.lanes < 0:
-            raise ValueError(f'link {self.link_id}: lanes must be >= 0, got {self.lanes}')
-        object.__setattr__(self, 'link_id', int(self.link_id))
-        object.__setattr__(self, 'length', float(self.length))
-        object.__setattr__(self, 'lanes', int(self.lanes))
 
 
 @dataclass(frozen=True, eq=False)
@@ -269,7 +239,8 @@ class RoadNetwork:
 
 def network_from_mapping(data: dict, source: str) -> RoadNetwork:
     """The network of a mapping in the YAML form (``mlkm_core.network_file``): ``links``
-    (id, name = ``link_<id>``, length_m, lanes = 0), ``connections`` (from, to), ``entries``
+    (id, name = ``link_<id>``, length_m, lanes = 0, shape_m = none: [[x, y], ...] [m]),
+    ``connections`` (from, to), ``entries``
     (link, position_m = 0), ``exits`` (link, position_m = the link's length), ``stations`` (id,
     name = ``sensor_<id>``, link, position_m, lanes = 0). Raises LayoutFileError naming
     ``source`` (a file) and the entry; unknown keys are errors."""
@@ -283,7 +254,11 @@ def network_from_mapping(data: dict, source: str) -> RoadNetwork:
         if not finite(length) or not length > 0:
             raise LayoutFileError(f'{at}: length_m must be a finite number > 0, got {length!r}')
         name = _name(d, at, default_link_name(link_id))
-        links.append(RoadLink(link_id, name, float(length), _count(d, 'lanes', at, 0)))
+        try:
+            links.append(RoadLink(link_id, name, float(length), _count(d, 'lanes', at, 0),
+                                  d.get('shape_m') or ()))  # fmt: skip
+        except ValueError as exc:
+            raise LayoutFileError(f'{at}: {exc}') from None
     lengths = {k.link_id: k.length for k in links}
     connections = []
     for at, d in _entries(data, 'connections', ('from', 'to'), source):
@@ -333,6 +308,7 @@ def network_to_mapping(net: RoadNetwork) -> dict:
     return {
         'links': [
             {'id': k.link_id, 'name': k.name, 'length_m': k.length, 'lanes': k.lanes}
+            | ({'shape_m': [list(p) for p in k.shape]} if k.shape else {})
             for k in net.links
         ],
         'connections': [{'from': a, 'to': b} for a, b in net.connections],

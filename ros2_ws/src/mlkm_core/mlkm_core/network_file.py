@@ -4,7 +4,8 @@ A file whose top level has ``links:`` describes a road network (``mlkm_core.netw
 
     # a road network: directed links joined at junctions, stations on links
     links:                       # id, name (topic token, default link_<id>), length [m], lanes
-      - {id: 0, name: main_in, length_m: 800.0, lanes: 3}
+      - {id: 0, name: main_in, length_m: 800.0, lanes: 3,
+         shape_m: [[0, 0], [800, 0]]}  # optional: its centre line, x east, y north [m]
       - {id: 1, name: main_out, length_m: 900.0, lanes: 3}
       - {id: 2, name: exit_ramp, length_m: 300.0, lanes: 1}
     connections:                 # a vehicle at the end of `from` can continue on `to`

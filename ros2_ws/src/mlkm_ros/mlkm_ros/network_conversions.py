@@ -9,6 +9,8 @@ comments). Nodes that know only the single road refuse such a layout (``road_len
 
 from __future__ import annotations
 
+import numpy as np
+
 from mlkm_core.layout_file import RoadLayout
 from mlkm_core.network import RoadLink, RoadNetwork
 from mlkm_ros.conversions import lane_counts_from_msg, layout_from_msg, layout_ramps
@@ -43,6 +45,10 @@ def network_to_msg(net: RoadNetwork, stamp_ns: int) -> SensorLayout:
     msg.entry_positions = [x for _, x in net.entries]
     msg.exit_links = [k for k, _ in net.exits]
     msg.exit_positions = [x for _, x in net.exits]
+    if any(k.shape for k in net.links):
+        msg.link_shape_sizes = [len(k.shape) for k in net.links]
+        msg.link_shape_x = [x for k in net.links for x, _ in k.shape]
+        msg.link_shape_y = [y for k in net.links for _, y in k.shape]
     return msg
 
 
@@ -67,11 +73,12 @@ def msg_to_network(msg: SensorLayout) -> RoadNetwork:
             f'lane_counts has {len(msg.lane_counts)} entries for {len(msg.sensor_ids)} sensors '
             '(give none or one per sensor)'
         )
+    shapes = _shapes(msg)
     return RoadNetwork(
         links=tuple(
-            RoadLink(int(i), str(name), float(length), int(lanes))
-            for i, name, length, lanes in zip(
-                msg.link_ids, msg.link_names, msg.link_lengths, msg.link_lanes
+            RoadLink(int(i), str(name), float(length), int(lanes), shape)
+            for i, name, length, lanes, shape in zip(
+                msg.link_ids, msg.link_names, msg.link_lengths, msg.link_lanes, shapes
             )
         ),
         connections=tuple(zip(msg.connection_from, msg.connection_to)),
@@ -83,6 +90,27 @@ def msg_to_network(msg: SensorLayout) -> RoadNetwork:
         entries=tuple(zip(msg.entry_links, msg.entry_positions)),
         exits=tuple(zip(msg.exit_links, msg.exit_positions)),
     )
+
+
+def _shapes(msg: SensorLayout) -> list[tuple[tuple[float, float], ...]]:
+    """Each link's shape (``link_shape_*``; none given: every link without one)."""
+    sizes = [int(n) for n in msg.link_shape_sizes]
+    if not sizes:
+        return [()] * len(msg.link_ids)
+    if len(sizes) != len(msg.link_ids):
+        raise ValueError(
+            f'link_shape_sizes has {len(sizes)} entries for {len(msg.link_ids)} links '
+            '(give none or one per link)'
+        )
+    _parallel(msg, 'link_shape_x', 'link_shape_y')
+    if sum(sizes) != len(msg.link_shape_x):
+        raise ValueError(
+            f'link_shape_sizes add up to {sum(sizes)} points, link_shape_x holds '
+            f'{len(msg.link_shape_x)}'
+        )
+    points = list(zip((float(x) for x in msg.link_shape_x), (float(y) for y in msg.link_shape_y)))
+    cuts = np.cumsum([0, *sizes])
+    return [tuple(points[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
 
 
 def _parallel(msg: SensorLayout, *fields: str) -> None:

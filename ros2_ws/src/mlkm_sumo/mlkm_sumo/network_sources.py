@@ -198,7 +198,8 @@ def layout(d: NetworkDraw, net) -> tuple[dict, tuple, tuple]:
     edges = [net.getEdge(e['id']) for e in d.edges]
     links = [
         {'id': k, 'name': e.getID(), 'length_m': round(e.getLength(), 2),
-         'lanes': e.getLaneNumber()}
+         'lanes': e.getLaneNumber(),
+         'shape_m': [[round(x, 2), round(y, 2)] for x, y in e.getShape()]}
         for k, e in enumerate(edges)
     ]  # fmt: skip
     pairs = sorted(
