@@ -2,7 +2,8 @@
 form): a hand-made diverge where two vehicles swap order and take different roads, so that
 the right tracks are certain; detections checked against their station's position along its
 link and its lane count; a method that does not associate networks reports every detection
-unassigned; stream mode ends with the same two tracks once the road falls quiet.
+unassigned; stream mode ends with the same two tracks once the road falls quiet; with link
+shapes in the layout, /mlkm/markers draws the links and places each track on its link.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import pytest
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from visualization_msgs.msg import Marker, MarkerArray
 
 from mlkm_assoc.association_node import AssociationNode
 from mlkm_core.network import RoadLink, RoadNetwork
@@ -101,10 +103,10 @@ def harness(rclpy_context, spin_until):
         h.close()
 
 
-def run_episode(h: Harness, extra=()) -> TrackArray:
-    """Publish the network, one episode with A, B and ``extra`` (station, t, v, lane,
+def run_episode(h: Harness, extra=(), network: RoadNetwork = NETWORK) -> TrackArray:
+    """Publish ``network``, one episode with A, B and ``extra`` (station, t, v, lane,
     position) detections; the final TrackArray."""
-    h.layout_pub.publish(network_to_msg(NETWORK, 0))
+    h.layout_pub.publish(network_to_msg(network, 0))
     h.wait(lambda: h.node.assembler.layout is not None)
     h.wait(lambda: all(p.get_subscription_count() >= 1 for p in h.det_pubs))
     start, end = ns(-1.0), ns(60.0)
@@ -196,3 +198,46 @@ def test_stream_mode_on_a_network_ends_with_the_two_tracks(harness) -> None:
             [(IDS[s], t, float(NETWORK.station_offsets[s])) for s, t, _, _ in B],
         ]
     )
+
+
+def test_markers_draw_a_network_with_shapes_and_its_tracks_on_their_links(harness) -> None:
+    # 'main' runs east from (0, 0); 'left' turns north at its end, 'right' south
+    shapes = {0: ((0.0, 0.0), (1000.0, 0.0)), 1: ((1000.0, 0.0), (1000.0, 600.0)),
+              2: ((1000.0, 0.0), (1000.0, -600.0))}  # fmt: skip
+    links = tuple(RoadLink(k.link_id, k.name, k.length, k.lanes, shapes[k.link_id])
+                  for k in NETWORK.links)  # fmt: skip
+    n = NETWORK
+    shaped = RoadNetwork(links, n.connections, n.station_ids, n.station_names,
+                         n.station_links, n.station_offsets, n.station_lanes)  # fmt: skip
+    h = harness(method='assignment', markers_rate=50.0)
+    arrays: list[MarkerArray] = []
+    h.test.create_subscription(MarkerArray, qos.MARKERS_TOPIC, arrays.append, qos.MARKERS_QOS)
+    final = run_episode(h, network=shaped)
+
+    def drawn(array: MarkerArray) -> dict[str, dict[int, Marker]]:
+        by_ns: dict[str, dict[int, Marker]] = {}
+        for m in array.markers[1:]:
+            by_ns.setdefault(m.ns, {})[m.id] = m
+        return by_ns
+
+    def final_picture() -> bool:
+        return any('final' in m.text for a in arrays for m in a.markers if m.ns == 'status')
+
+    h.wait(final_picture)
+    array = next(
+        a for a in arrays if any('final' in m.text for m in a.markers if m.ns == 'status')
+    )
+    by_ns = drawn(array)
+    assert [[(p.x, p.y) for p in by_ns['links'][i].points] for i in range(3)] == [
+        list(shapes[i]) for i in range(3)
+    ]
+    stations = [
+        (m.pose.position.x, m.pose.position.y) for _, m in sorted(by_ns['stations'].items())
+    ]
+    assert stations == [(300.0, 0.0), (800.0, 0.0), (1000.0, 200.0), (1000.0, -300.0)]
+    # the latest stamp is A's at c (45 s): A stands at c; B, seen at d at 42.1 s at 25 m/s,
+    # is 72.5 m further south on 'right'
+    ids = {int(t.sensor_ids[-1]): int(t.track_id) for t in final.tracks}
+    got = {i: (m.pose.position.x, m.pose.position.y) for i, m in by_ns['tracks'].items()}
+    assert got[ids[IDS[2]]] == pytest.approx((1000.0, 200.0))
+    assert got[ids[IDS[3]]] == pytest.approx((1000.0, -300.0 - 25.0 * 2.9))

@@ -16,7 +16,7 @@ def _track(track_id: int, status: int, n: int) -> Track:
     return Track(
         track_id=track_id,
         status=status,
-        sensor_ids=list(range(n)),
+        sensor_ids=[40 + k for k in range(n)],
         stamps=[Time(sec=10 + k, nanosec=7 * k + 1) for k in range(n)],
         velocities=[20.0 + k / 3 for k in range(n)],
         positions=[100.0 * (k + 1) for k in range(n)],
@@ -53,8 +53,9 @@ def test_summary_equals_the_deserialized_message(mode, unassigned) -> None:
     assert got.run == big and got.mode == mode and got.final
     (first_id, first), (empty_id, empty), _ = got.tracks
     assert (first_id, empty_id, empty) == (big + 1, 5, None)
-    assert (first.position, first.stamp_ns, first.velocity) == (
+    assert (first.position, first.stamp_ns, first.velocity, first.sensor_id) == (
         300.0,
         12 * NS_PER_S + 15,
         20.0 + 2 / 3,
+        42,
     )

@@ -14,7 +14,8 @@ association so far); a FINAL track that reached its clamp has left and is not dr
 mode the arrays carry the tracks that changed: they are merged by id, a run's tracks end when
 another run begins, a FINAL track is dropped once it reached its clamp, and a track whose
 latest detection is stamped before ``committed_until`` is drawn as committed, else as
-revisable.
+revisable. On a road network whose links have shapes the same holds in the network's plane
+(:mod:`mlkm_ros.network_markers`): a track sits on the link of its latest detection.
 
 Where ``tf2_msgs`` is importable (a ROS 2 install), /tf_static also gets the identity
 transform ``markers_parent_frame`` -> ``road``; the wheels do not carry tf2_msgs, and tools
@@ -37,6 +38,7 @@ from mlkm_core.types import Layout
 from mlkm_ros import qos
 from mlkm_ros.markers import FRAME, Scene, TrackView, build_markers, clear_all, next_station
 from mlkm_ros.markers import track_position as place
+from mlkm_ros.network_markers import NetworkGeometry, build_network_markers, network_geometry
 from mlkm_ros.track_summary import Passage, Summary, summarize
 from road_sensor_msgs.msg import Track, TrackArray
 
@@ -63,6 +65,7 @@ class RoadMarkers:
         self._lock = threading.Lock()
         self._pending: deque[bytes] = deque(maxlen=MAX_PENDING)
         self._layout: Layout | None = None
+        self._geometry: NetworkGeometry | None = None  # a network's, where it is drawn
         self._index: dict[int, int] = {}  # sensor id -> station index
         self._recent: list[deque[tuple[int, float]]] = []
         self._now_ns = -1  # the graph's latest detection stamp [ns]
@@ -80,26 +83,35 @@ class RoadMarkers:
 
     # --- inputs ---------------------------------------------------------------------------
     def layout(self, layout: Layout) -> None:
-        """A new (valid) layout. The stations of a road network are not drawn: the picture
-        is one road's, and a network layout carries no geometry to place its links."""
+        """A new (valid) layout. A road network is drawn where its links have shapes
+        (``mlkm_ros.network_markers``); one without them has nothing to place and is not
+        drawn (logged once)."""
+        geometry = None
         if isinstance(layout, NetworkStations):
-            self._layout, self._index, self._recent = None, {}, []
-            self._passages.clear()
-            if self._shown:
-                self._pub.publish(MarkerArray(markers=[clear_all()]))
-                self._shown = False
-            return
+            geometry = network_geometry(layout.network)
+            if geometry is None:
+                self._node.get_logger().info(
+                    '/mlkm/markers: the network layout carries no link shapes; nothing drawn'
+                )
+                self._layout, self._geometry, self._index, self._recent = None, None, {}, []
+                self._passages.clear()
+                if self._shown:
+                    self._pub.publish(MarkerArray(markers=[clear_all()]))
+                    self._shown = False
+                return
         old = self._layout
         if (
             old is not None
+            and type(old) is type(layout)
             and old.road_length == layout.road_length
             and old.names == layout.names
             and np.array_equal(old.positions, layout.positions)
             and np.array_equal(old.sensor_ids, layout.sensor_ids)
+            and getattr(old, 'network', None) == getattr(layout, 'network', None)
         ):
             return  # the same road again (a source restarted): its recent detections stay
         # another road: its stamps, detections and tracks start afresh
-        self._layout = layout
+        self._layout, self._geometry = layout, geometry
         self._index = {int(s): i for i, s in enumerate(layout.sensor_ids)}
         self._recent = [deque(maxlen=DETECTIONS_SHOWN) for _ in self._index]
         self._now_ns = -1
@@ -170,7 +182,10 @@ class RoadMarkers:
         if not self._changed:
             return
         self._changed = False
-        self._pub.publish(build_markers(self.scene()))
+        if self._geometry is not None:
+            self._pub.publish(build_network_markers(self._geometry, *self.network_scene()))
+        else:
+            self._pub.publish(build_markers(self.scene()))
         self._shown = True
         self.published += 1
 
@@ -218,6 +233,25 @@ class RoadMarkers:
             tracks=views,
             status=self._status,
         )
+
+    def network_scene(self) -> tuple[int, list[TrackView], str]:
+        """(stamp [ns], tracks, status) of the next MarkerArray of a network: each track on
+        the link of its latest detection (FINAL tracks that have left are dropped)."""
+        g = self._geometry
+        now = self._now_ns / NS_PER_S
+        views = []
+        for track_id, p in list(self._passages.items()):
+            station = self._index.get(p.sensor_id)
+            if station is None:
+                continue
+            x, y, reached = g.place(station, p.stamp_ns / NS_PER_S, p.velocity, now)
+            if p.status == Track.STATUS_FINAL and reached:
+                if self._stream:
+                    del self._passages[track_id]
+                continue
+            committed = p.stamp_ns < self._committed_until_ns if self._stream else None
+            views.append(TrackView(int(track_id), x, committed, y))
+        return max(self._now_ns, 0), views, self._status
 
 
 def _publish_static_transform(node: Node, parent_frame: str):

@@ -13,6 +13,7 @@ import numpy as np
 from rclpy.serialization import serialize_message
 
 from mlkm_assoc.solver import Result
+from mlkm_core.network_assoc.stations import NetworkStations
 from mlkm_core.types import UNASSIGNED
 from mlkm_ros.conversions import tracks_to_msg
 
@@ -54,6 +55,7 @@ def encode(result: Result) -> Update:
         lanes=result.lanes,
         lengths=result.lengths,
         retired=result.retired,
+        by_stamp=isinstance(layout, NetworkStations),  # positions lie on different links
     )
     labels = result.labels
     return Update(

@@ -92,6 +92,7 @@ class TrackerState:
         self._executor = executor  # runs the tracker's window solves (None: inside push)
         self._tracker = None
         self._layout: Layout | None = None
+        self._network = False
         self._rows: dict[int, list] = {}  # key -> [sensor id, stamp ns, v, pos, lane, length]
         self._committed: dict[int, int] = {}  # key -> committed track (-1 unassigned)
         self._final: dict[int, int] = {}  # final track -> its detections still held
@@ -135,6 +136,7 @@ class TrackerState:
             )
         self.run = max(time.time_ns() // 1000, self._next_id)
         self._layout = layout
+        self._network = isinstance(layout, NetworkStations)  # tracks ordered by stamp
         self._reorder = ReorderBuffer(layout.n_sensors)
         self.newest = self.committed_until = -math.inf
         if answer is None:
@@ -145,6 +147,7 @@ class TrackerState:
                 committed_until_ns=0,
                 solve_time=0.0,
                 run=self.run,
+                by_stamp=self._network,
             )
             answer = Answer(data, [], 0, 0, 0.0, -math.inf, -math.inf, 0, 0)
         return answer
@@ -302,6 +305,7 @@ class TrackerState:
                 committed_until_ns=_to_ns(committed),
                 solve_time=solve_time,
                 run=self.run,
+                by_stamp=self._network,
             )
         self._forget(merged)
         stats = dict(self.counts)

@@ -78,6 +78,7 @@ class TrackView:
     track_id: int
     x: float  # [m]
     committed: bool | None = None
+    y: float = 0.0  # [m] (a road network's plane; 0 on one road)
 
 
 @dataclass
@@ -99,11 +100,11 @@ class Scene:
         return self.size if self.size > 0 else max(1.0, self.road_length / 250.0)
 
 
-def _colour(r: float, g: float, b: float, a: float = 1.0) -> ColorRGBA:
+def rgba(r: float, g: float, b: float, a: float = 1.0) -> ColorRGBA:
     return ColorRGBA(r=float(r), g=float(g), b=float(b), a=float(a))
 
 
-def _marker(
+def new_marker(
     ns: str, mid: int, kind: int, stamp: Time, x: float, y: float, z: float, colour: ColorRGBA
 ) -> Marker:
     m = Marker(ns=ns, id=mid, type=kind, action=Marker.ADD, color=colour)
@@ -114,8 +115,10 @@ def _marker(
     return m
 
 
-def _text(ns: str, mid: int, stamp: Time, x: float, z: float, text: str, height: float) -> Marker:
-    m = _marker(ns, mid, Marker.TEXT_VIEW_FACING, stamp, x, 0.0, z, _colour(1, 1, 1))
+def text_marker(
+    ns: str, mid: int, stamp: Time, x: float, z: float, text: str, height: float, y: float = 0.0
+) -> Marker:
+    m = new_marker(ns, mid, Marker.TEXT_VIEW_FACING, stamp, x, y, z, rgba(1, 1, 1))
     m.text = text
     m.scale.z = float(height)
     return m
@@ -136,27 +139,27 @@ def build_markers(scene: Scene) -> MarkerArray:
     size = scene.marker_size()
     out = [clear_all(stamp)]
 
-    road = _marker('road', 0, Marker.LINE_STRIP, stamp, 0, 0, 0, _colour(0.6, 0.6, 0.6))
+    road = new_marker('road', 0, Marker.LINE_STRIP, stamp, 0, 0, 0, rgba(0.6, 0.6, 0.6))
     road.points = [Point(), Point(x=float(scene.road_length))]
     road.scale.x = size / 4.0
     out.append(road)
     if scene.status:
-        out.append(_text('status', 0, stamp, 0.0, 6.0 * size, scene.status, 1.5 * size))
+        out.append(text_marker('status', 0, stamp, 0.0, 6.0 * size, scene.status, 1.5 * size))
 
     for i, (x, name) in enumerate(zip(scene.positions, scene.names, strict=True)):
-        pole = _marker(
-            'stations', i, Marker.CYLINDER, stamp, x, 0, 1.5 * size, _colour(0.4, 0.55, 0.8)
+        pole = new_marker(
+            'stations', i, Marker.CYLINDER, stamp, x, 0, 1.5 * size, rgba(0.4, 0.55, 0.8)
         )
         pole.scale.x = pole.scale.y = size / 2.0
         pole.scale.z = 3.0 * size
         out.append(pole)
-        out.append(_text('station_names', i, stamp, x, 4.0 * size, name, size))
+        out.append(text_marker('station_names', i, stamp, x, 4.0 * size, name, size))
 
     for i, dets in enumerate(scene.detections):
         if not dets:
             continue
         x = scene.positions[i]
-        spheres = _marker('detections', i, Marker.SPHERE_LIST, stamp, x, 0, 0, _colour(1, 0.6, 0))
+        spheres = new_marker('detections', i, Marker.SPHERE_LIST, stamp, x, 0, 0, rgba(1, 0.6, 0))
         spheres.scale.x = spheres.scale.y = spheres.scale.z = 0.6 * size
         # newest nearest to the road, one row per lane (lane 0, the rightmost, first)
         spheres.points = [
@@ -165,13 +168,23 @@ def build_markers(scene: Scene) -> MarkerArray:
         ]
         out.append(spheres)
 
-    for track in scene.tracks:
+    out.extend(track_markers(scene.tracks, stamp, size))
+    return MarkerArray(markers=out)
+
+
+def track_markers(tracks: Sequence[TrackView], stamp: Time, size: float) -> list[Marker]:
+    """A sphere per track, coloured by its id (faint while revisable), with its id above."""
+    out = []
+    for track in tracks:
         mid = marker_id(track.track_id)
         alpha = REVISABLE_ALPHA if track.committed is False else 1.0
         r, g, b = track_colour(track.track_id)
-        dot = _marker('tracks', mid, Marker.SPHERE, stamp, track.x, 0, 0, _colour(r, g, b, alpha))
+        colour = rgba(r, g, b, alpha)
+        dot = new_marker('tracks', mid, Marker.SPHERE, stamp, track.x, track.y, 0, colour)
         dot.scale.x = dot.scale.y = dot.scale.z = size
         out.append(dot)
         label = str(track.track_id) + (' (revisable)' if track.committed is False else '')
-        out.append(_text('track_ids', mid, stamp, track.x, 1.5 * size, label, 0.8 * size))
-    return MarkerArray(markers=out)
+        out.append(
+            text_marker('track_ids', mid, stamp, track.x, 1.5 * size, label, 0.8 * size, track.y)
+        )
+    return out

@@ -41,10 +41,12 @@ def tracks_to_msg(
     lanes: np.ndarray | None = None,
     lengths: np.ndarray | None = None,
     retired: Sequence[int] = (),
+    by_stamp: bool = False,
 ) -> TrackArray:
     """Group detections by label into Tracks (each ordered by position, then stamp, then
-    lane) of an episodes-mode TrackArray: every track STATUS_FINAL in a final array,
-    STATUS_CONFIRMED in a partial one.
+    lane; ``by_stamp``: by stamp, then position, as on a road network, whose positions lie
+    on different links) of an episodes-mode TrackArray: every track STATUS_FINAL in a final
+    array, STATUS_CONFIRMED in a partial one.
 
     ``labels[i]`` is the track id of detection i, or -1 (unassigned); ``lanes`` (-1 unknown)
     and ``lengths`` [m] (NaN unknown) default to unknown. Each id of ``retired`` (a track an
@@ -62,7 +64,8 @@ def tracks_to_msg(
     if lanes.shape != (n,) or lengths.shape != (n,):
         raise ValueError('lanes and lengths need one entry per detection')
     status = Track.STATUS_FINAL if final else Track.STATUS_CONFIRMED
-    order = np.lexsort((lanes, stamps_ns, positions, labels))
+    first, second = (stamps_ns, positions) if by_stamp else (positions, stamps_ns)
+    order = np.lexsort((lanes, second, first, labels))
     sorted_labels = labels[order]
     cuts = np.flatnonzero(np.diff(sorted_labels)) + 1
     msg = TrackArray(
@@ -168,9 +171,11 @@ def stream_tracks_to_msg(
     solve_time: float,
     stamp_ns: int,
     run: int = 0,
+    by_stamp: bool = False,
 ) -> TrackArray:
     """A stream-mode TrackArray: ``tracks`` are (track id, status, rows) of the tracks that
-    changed, each with every detection it holds (ordered here by position, then stamp);
+    changed, each with every detection it holds (ordered here by position, then stamp;
+    ``by_stamp``: by stamp, then position, as on a road network);
     ``unassigned`` the detections that became unassigned; ``run`` the tracker run that
     numbered the tracks (TrackArray.run); episode_id 0, final false."""
     msg = TrackArray(
@@ -187,7 +192,8 @@ def stream_tracks_to_msg(
     # of checking every element (this runs for every TrackArray of stream mode)
     out = []
     for track_id, status, rows in tracks:
-        rows = sorted(rows, key=lambda r: (r[3], r[1], r[4]))
+        rows = sorted(rows, key=(lambda r: (r[1], r[3], r[4])) if by_stamp else
+                      (lambda r: (r[3], r[1], r[4])))  # fmt: skip
         out.append(
             Track(
                 track_id=int(track_id),

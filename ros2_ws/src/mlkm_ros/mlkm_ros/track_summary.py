@@ -24,13 +24,16 @@ _CDR_LE = b'\x00\x01'  # encapsulation: plain CDR, little endian
 
 @dataclass(frozen=True)
 class Passage:
-    """A track's latest passage: its last station [m], stamp [ns], speed [m/s]; its status."""
+    """A track's latest passage (its last detection in the track's order: by position on a
+    road, by stamp on a network): its station's position [m], stamp [ns], speed [m/s] and
+    sensor; the track's status."""
 
     track_id: int
     status: int
     position: float
     stamp_ns: int
     velocity: float
+    sensor_id: int = -1
 
 
 @dataclass
@@ -112,7 +115,7 @@ def summarize(data: bytes) -> Summary:
     for _ in range(c.u32()):
         track_id = c.u64()
         status = c.u8()
-        c.sequence(4, 4)  # sensor_ids
+        _, ids = c.sequence(4, 4)  # sensor_ids
         n, stamps = c.sequence(8, 4)
         _, velocities = c.sequence(8, 8)
         _, positions = c.sequence(8, 8)
@@ -128,6 +131,7 @@ def summarize(data: bytes) -> Summary:
             c.last('d', 8, n, positions)[0],
             sec * NS_PER_S + nanosec,
             c.last('d', 8, n, velocities)[0],
+            c.last('I', 4, n, ids)[0],
         )
         tracks.append((track_id, passage))
     c.sequence(4, 4)  # unassigned_sensor_ids
@@ -164,6 +168,7 @@ def _from_message(msg: TrackArray) -> Summary:
                 float(t.positions[-1]),
                 ns(t.stamps[-1]),
                 float(t.velocities[-1]),
+                int(t.sensor_ids[-1]),
             )
         tracks.append((int(t.track_id), passage))
     return Summary(
