@@ -1,7 +1,8 @@
 """Association on road networks (``mlkm_core.network_assoc``) on hand-made junctions: tracks
 through a diverge and a merge where the vehicles swap order, a vehicle held at a red light,
 a vehicle that leaves at a junction, the single road as the one-link network, and the hops
-between stations with their distances computed by hand."""
+between stations with their distances computed by hand; the one-road tracking methods on a
+network (per link, then the network model across the junctions)."""
 
 from __future__ import annotations
 
@@ -50,6 +51,10 @@ def same_tracks(labels: np.ndarray, target: np.ndarray) -> bool:
     )
 
 
+#: the network methods that track (``gmlkm`` is the baseline)
+TRACKING = ('assignment', 'multiframe', 'mlkm_robust')
+
+
 def diverge() -> RoadNetwork:
     # link 0 (1000 m) splits into links 1 and 2 (600 m each)
     return network([(0, 1000.0), (1, 600.0), (2, 600.0)], [(0, 1), (0, 2)],
@@ -78,7 +83,7 @@ def test_two_vehicles_that_swap_order_at_a_diverge_keep_their_tracks():
     a = [(0, 0.0, 20.0), (1, 25.0, 20.0), (2, 45.0, 20.0)]
     b = [(0, 2.0, 25.0), (1, 22.1, 25.0), (3, 42.1, 25.0)]
     d = detections([a, b])
-    for method in ('assignment', 'gmlkm'):
+    for method in ('assignment', 'gmlkm', 'multiframe', 'mlkm_robust'):
         labels = associate_network(diverge(), d, method)
         assert same_tracks(labels, d.target), (method, labels)
 
@@ -90,8 +95,9 @@ def test_two_vehicles_that_swap_order_at_a_merge_keep_their_tracks():
     a = [(0, 10.0, 20.0), (2, 10.0 + 700 / 20, 20.0)]  # 400 + 300 m: arrives at 45 s
     b = [(1, 30.0, 25.0), (2, 30.0 + 500 / 25, 25.0)]  # 200 + 300 m: arrives at 50 s
     d = detections([a, b])
-    labels = associate_network(net, d)
-    assert same_tracks(labels, d.target), labels
+    for method in TRACKING:
+        labels = associate_network(net, d, method)
+        assert same_tracks(labels, d.target), (method, labels)
 
 
 def signal_traffic(n: int = 40) -> tuple[RoadNetwork, Detections]:
@@ -131,8 +137,36 @@ def test_a_vehicle_that_leaves_at_a_junction_ends_its_track_there():
     c = [(0, 0.0, 20.0), (1, 25.0, 20.0)]
     e = [(0, 3.0, 20.0), (1, 28.0, 20.0), (2, 48.0, 20.0)]
     d = detections([c, e])
-    labels = associate_network(net, d)
-    assert same_tracks(labels, d.target), labels
+    for method in TRACKING:
+        labels = associate_network(net, d, method)
+        assert same_tracks(labels, d.target), (method, labels)
+
+
+@pytest.mark.parametrize('method', ['multiframe', 'mlkm_robust'])
+def test_a_one_road_method_on_a_one_link_network_is_that_method(method):
+    # one link, no junction: the method on its link is all there is, and nothing is joined
+    ds = simulate(SimConfig(n_targets=30, n_sensors=8, false_alarm_rate=0.02), 5)
+    net = RoadNetwork.single_road(RoadLayout(ds.layout))
+    on_network = associate_network(net, ds.detections, method)
+    on_road = make_associator(method).associate(ds.layout, ds.detections, ds.n_targets)
+    assert np.array_equal(on_network >= 0, on_road >= 0)
+    assert len(set(zip(on_network.tolist(), on_road.tolist()))) == len(set(on_road.tolist()))
+    assert accuracy(on_network, ds.detections.target).accuracy > 0.9
+
+
+def test_a_one_road_method_on_a_network_joins_its_link_tracks_across_the_junction():
+    # three vehicles on link 0 (three stations) go on to link 1 (two stations); C is missed at
+    # the last station of link 0, so its link-track there ends one station early
+    net = network([(0, 1500.0), (1, 1000.0)], [(0, 1)],
+                  [(0, 300.0), (0, 800.0), (0, 1300.0), (1, 200.0), (1, 700.0)])  # fmt: skip
+    x = [300.0, 800.0, 1300.0, 1700.0, 2200.0]  # along the way [m]
+    vehicles = []
+    for t0, v, seen in ((0.0, 20.0, range(5)), (3.0, 25.0, range(5)), (5.0, 22.0, (0, 1, 3, 4))):
+        vehicles.append([(s, t0 + (x[s] - 300.0) / v, v) for s in seen])
+    d = detections(vehicles)
+    for method in TRACKING:
+        labels = associate_network(net, d, method)
+        assert same_tracks(labels, d.target), (method, labels)
 
 
 def test_a_single_road_as_its_one_link_network_links_as_assignment_does():

@@ -306,7 +306,9 @@ def build_parser() -> argparse.ArgumentParser:
         '--method',
         default='mlkm',
         choices=sorted({*available_methods(), *NETWORK_METHODS}),
-        help='associator (default: mlkm; with --layout: assignment or gmlkm)',
+        help='associator (default: mlkm; with --layout one of the network methods: '
+        + ', '.join(sorted(NETWORK_METHODS))
+        + ')',
     )
     a.add_argument(
         '--segment-size',

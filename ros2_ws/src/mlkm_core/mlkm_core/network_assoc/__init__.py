@@ -6,6 +6,8 @@ The methods, by name (``NETWORK_METHODS``):
 * ``assignment``: one global matching of every detection to its successor over the hops of
   the network (``linking``), with the motion, the turn shares and the time lost at junctions
   fitted to the data being associated (``fit``);
+* ``multiframe``, ``mlkm_robust``: the one-road tracking methods on each link, then one
+  matching across the junctions under ``assignment``'s fitted model (``per_link``);
 * ``gmlkm``: the baseline in the spirit of G-MLKM (the paper's MLKM on each link, then
   association across each junction with error correction by physical rules; ``gmlkm``, from
   our reading of the paper's follow-up, which the stronger methods must beat).
@@ -24,6 +26,7 @@ from mlkm_core.network import RoadNetwork
 from mlkm_core.network_assoc.fit import NetworkModel, calibrate_and_link
 from mlkm_core.network_assoc.gmlkm import gmlkm_associate
 from mlkm_core.network_assoc.hops import Hops, network_hops
+from mlkm_core.network_assoc.per_link import per_link_associate
 from mlkm_core.types import Detections
 
 #: stations a track may pass unseen between two of its detections
@@ -41,6 +44,12 @@ def _assignment(net: RoadNetwork, d: Detections, seed: int) -> np.ndarray:
 NETWORK_METHODS: dict[str, Callable[[RoadNetwork, Detections, int], np.ndarray]] = {
     'assignment': _assignment,
     'gmlkm': lambda net, d, seed: gmlkm_associate(net, d, seed),
+    **{
+        name: lambda net, d, seed, name=name: per_link_associate(
+            net, network_hops(net, MAX_SKIP), d, name, seed
+        )
+        for name in ('multiframe', 'mlkm_robust')
+    },
 }
 
 

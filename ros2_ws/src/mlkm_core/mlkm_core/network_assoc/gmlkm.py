@@ -106,10 +106,13 @@ def gmlkm_associate(net: RoadNetwork, d: Detections, seed: int = 0) -> np.ndarra
     return _number_tracks(d, piece, joins)
 
 
-def link_tracks(net: RoadNetwork, d: Detections, seed: int = 0) -> np.ndarray:
-    """Step 1: the link-track (0, 1, ... over the network) of every detection: MLKM on each
-    link's detections (readings 1 and 2); on a one-station link each detection alone."""
-    mlkm = make_associator('mlkm', AssociatorConfig(seed=seed))
+def link_tracks(
+    net: RoadNetwork, d: Detections, seed: int = 0, method: str = 'mlkm'
+) -> np.ndarray:
+    """Step 1: the link-track (0, 1, ... over the network) of every detection: MLKM (or the
+    one-road ``method``) on each link's detections (readings 1 and 2), the link's entries and
+    exits inside it given as the road's; on a one-station link each detection alone, and a
+    detection the method leaves alone a link-track of its own."""
     piece = np.full(len(d), -1, np.int64)
     next_id = 0
     for link, along in net.stations_along.items():
@@ -129,9 +132,14 @@ def link_tracks(net: RoadNetwork, d: Detections, seed: int = 0) -> np.ndarray:
                 np.array([x for x, _ in along], float),
                 net.station_ids[stations],
             )
+            inside = [
+                tuple(x for k, x in points if k == link and 0.0 < x < net.link_lengths[link])
+                for points in (net.entries, net.exits)
+            ]
+            config = AssociatorConfig(seed=seed, entries=inside[0], exits=inside[1])
             n_targets = int(np.bincount(sub.sensor_index).max())
-            local = mlkm.associate(layout, sub, n_targets)
-            stray = local < 0  # none expected: MLKM labels every detection
+            local = make_associator(method, config).associate(layout, sub, n_targets)
+            stray = local < 0  # none from MLKM, which labels every detection
             local[stray] = local.max(initial=-1) + 1 + np.arange(int(stray.sum()))
         _, local = np.unique(local, return_inverse=True)
         piece[mine] = next_id + local

@@ -279,6 +279,19 @@ def network_targets(net: dict) -> list[dict]:
             bool(gaps) and min(gaps) >= 100 * MARGIN,
             ', '.join(f'{g:+.2f}' for g in gaps) + ' points',
         )
+        behind = []  # (method, variant, points) of every tracking method below the baseline
+        for m in c['variants'][VARIANTS[0]]:
+            if m in (BASELINE, PEER):
+                continue
+            for v in VARIANTS:
+                got, base = _mean(c, v, m), _mean(c, v, BASELINE)
+                if got is not None and base is not None and got < base:
+                    behind.append(f'{m} ({VARIANT_LABELS[v]}) {100 * (got - base):+.2f}')
+        check(
+            f'network {fam}: every tracking method >= {BASELINE}',
+            not behind,
+            '; '.join(behind) + ' points' if behind else 'all at or above',
+        )
     st = net.get('stream_speed')
     check(
         f'network stream: p95 detection-to-track latency < {STREAM_P95_MS:g} ms '
