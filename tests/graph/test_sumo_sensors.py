@@ -2,7 +2,9 @@
 
 The episodes test checks the whole graph: sumo_sensors (episodes mode) feeds the association
 and scorer nodes, and the live accuracy of every episode equals ``mlkm associate`` (the
-offline CLI) on ``mlkm_sumo.episodes`` of the same scenario and seed written to CSV.
+offline CLI) on ``mlkm_sumo.episodes`` of the same scenario and seed written to CSV; on a road
+network (``network:=interchange``) it equals the network association of ``mlkm sumo
+--network``'s run of the same draw.
 """
 
 from __future__ import annotations
@@ -102,10 +104,13 @@ def test_param_file_matches_declared_defaults() -> None:
         ('mode:=batch', "unknown value 'batch'; choose one of episodes, continuous"),
         ('cache_dir:=/dev/null/x', 'cannot create the network cache /dev/null/x'),
         ('stations_at:=500;1200', 'stations_at must list positions in metres separated by'),
+        ('network:=ring', "unknown value 'ring'; choose one of , interchange, arterial, grid"),
+        ('network:=grid', "mode 'continuous' is not available on a road network"),
     ],
 )
 def test_bad_setting_exits_2_with_one_clear_message(ros_process, param, words) -> None:
-    proc = ros_process('road_sensors', 'sumo_sensors', '--ros-args', '-p', param)
+    extra = ('-p', 'mode:=continuous') if param == 'network:=grid' else ()
+    proc = ros_process('road_sensors', 'sumo_sensors', '--ros-args', '-p', param, *extra)
     assert proc.proc.wait(60) == 2
     out = proc.output()
     assert words in out and 'sumo_sensors: error:' in out
@@ -203,6 +208,49 @@ def test_episodes_live_equal_offline_cli(
     ended = [i for i in listener.infos if i.status == EpisodeInfo.STATUS_ENDED]
     assert sorted(i.episode_id for i in ended) == list(range(EPISODES))
     assert sum(sum(i.detection_counts) for i in ended) == len(listener.truth)
+
+
+def test_a_network_episode_live_equals_its_offline_association(
+    ros_process, listener, spin_until
+) -> None:
+    from mlkm_core.metrics import score
+    from mlkm_core.network_assoc import associate_network
+    from mlkm_ros.network_conversions import msg_to_network
+    from mlkm_sumo.road_networks import draw_network, generate_network
+
+    ds = generate_network(draw_network('interchange', 2, vehicles=40))
+    d = ds.detections()
+    d.stamp = np.array([conv.seconds_to_ns(t) / conv.NS_PER_S for t in d.stamp])  # as sent
+    offline = score(d, associate_network(ds_network(ds), d, 'assignment'))
+    assoc = ros_process(
+        'mlkm_assoc', 'association_node', '--ros-args', '-p', 'method:=assignment',
+        '-p', 'wait_for_track_subscribers:=1', '-p', 'markers:=false',
+    )  # fmt: skip
+    scorer = ros_process('mlkm_assoc', 'scorer_node')
+    sumo = ros_process(
+        'road_sensors',
+        'sumo_sensors',
+        '--ros-args',
+        *('-p', 'network:=interchange', '-p', 'seed:=2', '-p', 'vehicles:=40'),
+        *('-p', 'episodes:=1', '-p', 'wait_for_subscribers:=1'),
+        '-p',
+        'wait_for_truth_subscribers:=2',
+    )
+    done = spin_until(listener.executor, lambda: 0 in listener.scores, 120.0)
+    assert done, sumo.output() + assoc.output() + scorer.output()
+    assert sumo.proc.wait(30) == 0, sumo.output()
+    live = listener.scores[0]
+    assert (live.correct, live.total) == (offline.correct, offline.total)
+    assert live.total > 100 and offline.accuracy > 0.8
+    # the layout is the network's, its links with their SUMO shapes
+    net = msg_to_network(listener.layout)
+    assert net == ds_network(ds) and all(len(k.shape) >= 2 for k in net.links)
+
+
+def ds_network(ds):
+    from mlkm_core.network import network_from_mapping
+
+    return network_from_mapping(ds.mapping, 'interchange')
 
 
 def test_continuous_mode_streams_without_episodes(ros_process, listener, spin_until) -> None:

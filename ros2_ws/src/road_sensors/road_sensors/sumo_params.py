@@ -10,6 +10,7 @@ from typing import Any
 
 from mlkm_ros.params import ParameterError, ParamSpec, non_negative
 from mlkm_sumo import SCENARIOS, MeasurementConfig
+from mlkm_sumo.network_families import NETWORK_FAMILIES
 from road_sensors.delivery import DeliveryConfig, delivery_specs
 
 MODES = ('episodes', 'continuous')
@@ -53,6 +54,16 @@ SPECS = [
         read_only=True,
         check=_one_of(tuple(SCENARIOS)),
         constraints='one of: ' + ', '.join(SCENARIOS),
+    ),
+    ParamSpec(
+        'network',
+        '',
+        'a road network of this family instead of the scenario, drawn for `seed` (as `mlkm '
+        'sumo --network`): one of ' + ', '.join(NETWORK_FAMILIES) + '; empty = the '
+        'single-road scenario [-]',
+        read_only=True,
+        check=_one_of(('', *NETWORK_FAMILIES)),
+        constraints='empty or one of: ' + ', '.join(NETWORK_FAMILIES),
     ),
     ParamSpec(
         'mode',
@@ -131,6 +142,7 @@ class SumoSensorsConfig(DeliveryConfig):
     """Everything the node needs, from its parameters (read once at startup)."""
 
     scenario: str
+    network: str | None  # a network family; None: the single-road scenario
     mode: str
     vehicles: int
     episodes: int
@@ -168,8 +180,14 @@ class SumoSensorsConfig(DeliveryConfig):
             )
         except ValueError as exc:
             raise ParameterError(f'invalid measurement model: {exc}') from None
+        if v['network'] and v['mode'] != 'episodes':
+            raise ParameterError(
+                f'mode {v["mode"]!r} is not available on a road network (network '
+                f"{v['network']!r}): use mode 'episodes'"
+            )
         return SumoSensorsConfig(
             scenario=v['scenario'],
+            network=v['network'] or None,
             mode=v['mode'],
             vehicles=v['vehicles'],
             episodes=v['episodes'],

@@ -30,15 +30,21 @@ from __future__ import annotations
 import contextlib
 import math
 import sys
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
+from mlkm_core.network import network_from_mapping
+from mlkm_core.network_assoc.stations import network_stations
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle
+from mlkm_ros.network_conversions import network_to_msg
 from mlkm_ros.params import ParameterError
 from mlkm_sumo import PassageStream, SumoDataset, SumoError, episodes, road
 from mlkm_sumo.measurement import PASSAGE
+from mlkm_sumo.network_sources import build_draw
+from mlkm_sumo.road_networks import draw_network, generate_network
 from road_sensors.source import SensorSource
 from road_sensors.sumo_params import SPECS, SumoSensorsConfig
 
@@ -59,11 +65,18 @@ class SumoSensorsNode(SensorSource):
         ParameterError (a refused parameter) or SumoError (scenario, network, stations)."""
         super().__init__('sumo_sensors', SPECS, SumoSensorsConfig.from_values, **node_kwargs)
         cfg: SumoSensorsConfig = self._config
-        self._road = road(cfg.scenario, cfg.stations, cfg.seed, cfg.stations_at, cfg.cache_dir)
-        layout = self._road.layout
         #: [ns] added to every SUMO time so that jittered stamps stay >= 0.
         self._origin_ns = conv.seconds_to_ns(math.ceil(6.0 * cfg.measurement.stamp_jitter))
         self._episodes_published = 0
+        if cfg.network:
+            self._open_network(cfg)
+        else:
+            self._open_road(cfg)
+        self._start()
+
+    def _open_road(self, cfg: SumoSensorsConfig) -> None:
+        self._road = road(cfg.scenario, cfg.stations, cfg.seed, cfg.stations_at, cfg.cache_dir)
+        layout = self._road.layout
         ramps = self._road.ramps
         self._open(
             layout,
@@ -88,7 +101,21 @@ class SumoSensorsNode(SensorSource):
             f'({int(self._road.lanes.sum())} loops) on {layout.road_length:g} m, {what}, '
             f'seed {cfg.seed}, real_time_factor {self._rtf:g}'
         )
-        self._start()
+
+    def _open_network(self, cfg: SumoSensorsConfig) -> None:
+        """A road network of the family ``cfg.network`` drawn for ``cfg.seed`` with
+        ``cfg.vehicles`` vehicles (``mlkm sumo --network``'s draw), published in the network
+        form of the layout with its links' shapes."""
+        self._draw = draw_network(cfg.network, cfg.seed, vehicles=cfg.vehicles)
+        built = build_draw(self._draw, cfg.cache_dir)
+        self._net = network_from_mapping(built.mapping, f'{cfg.network} seed {cfg.seed}')
+        self._mapping = built.mapping
+        self._open(network_stations(self._net), True, network_to_msg(self._net, self._now_ns()))
+        self.get_logger().info(
+            f'SUMO network {cfg.network} seed {cfg.seed}: {self._net.n_stations} stations on '
+            f'{len(self._net.links)} links, {cfg.episodes} episodes of {cfg.vehicles} vehicles, '
+            f'real_time_factor {self._rtf:g}'
+        )
 
     # --- the run --------------------------------------------------------------------------
     def _publish_all(self) -> bool:
@@ -105,11 +132,25 @@ class SumoSensorsNode(SensorSource):
 
     def _run_episodes(self) -> bool:
         cfg: SumoSensorsConfig = self._config
+        if cfg.network:
+            return self._run_network_episodes(cfg)
         batches = episodes(cfg.scenario, cfg.vehicles, cfg.episodes, **cfg.sumo_options())
         with contextlib.closing(batches):  # an early stop closes SUMO
             for k, dataset in enumerate(batches):
                 if self._interrupted() or not self._publish_episode(k, dataset):
                     return False
+        return True
+
+    def _run_network_episodes(self, cfg: SumoSensorsConfig) -> bool:
+        """Episode k: the network's traffic with SUMO and the measurement seeded seed + k
+        (episode 0 is ``mlkm sumo --network <family> --seed <seed>``'s run)."""
+        for k in range(cfg.episodes):
+            draw = replace(self._draw, seed=self._draw.seed + k)
+            ds = generate_network(draw, cfg.cache_dir, cfg.measurement, cfg.step_length)
+            if ds.mapping != self._mapping:
+                raise SumoError(f'episode {k}: SUMO built another network for seed {draw.seed}')
+            if self._interrupted() or not self._publish_episode(k, _NetworkEpisode(ds)):
+                return False
         return True
 
     def _publish_episode(self, k: int, ds: SumoDataset) -> bool:
@@ -176,6 +217,18 @@ class SumoSensorsNode(SensorSource):
                         f'{len(targets)} vehicles published'
                     )
         return True
+
+
+class _NetworkEpisode:
+    """A network run as ``_publish_episode`` reads an episode: station ids are the network's
+    station indexes (``mlkm sumo --network`` numbers them so)."""
+
+    def __init__(self, ds) -> None:
+        self.detections = ds.detections()
+        self.n_targets = ds.n_targets
+        self.true_speed = ds.true_speed
+        self.vehicle = ds.vehicle
+        self.stats = ds.stats
 
 
 def main(args: list[str] | None = None) -> int:
