@@ -23,7 +23,8 @@ def test_one_seed_per_family_end_to_end_through_the_cli(tmp_path):
         assert cell['seeds'] == [1] and cell['draws'][0]['family'] == cell['family']
         for variant in network.VARIANTS:
             runs = cell['variants'][variant]
-            assert set(runs) == {'assignment', 'gmlkm', 'assignment_stream'}
+            assert set(runs) == {'assignment', 'gmlkm', 'multiframe', 'mlkm_robust',
+                                 'assignment_stream'}  # fmt: skip
             for rec in runs.values():
                 (row,) = rec['runs']
                 assert 0.0 < row['accuracy'] <= 1.0

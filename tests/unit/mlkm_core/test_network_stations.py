@@ -67,8 +67,12 @@ def test_the_network_method_behind_the_associator_interface_incremental_equals_b
 
 def test_a_method_of_one_road_is_refused_on_a_network_and_kept_on_a_road():
     assert network_method_problem('assignment') is None
-    with pytest.raises(ValueError, match="method 'multiframe' does not associate road networks"):
-        associator_for(network_stations(NET), 'multiframe', AssociatorConfig())
+    with pytest.raises(ValueError, match="method 'mlkm' does not associate road networks"):
+        associator_for(network_stations(NET), 'mlkm', AssociatorConfig())
+    assert isinstance(
+        associator_for(network_stations(NET), 'multiframe', AssociatorConfig()),
+        NetworkAssociator,
+    )  # its network form: each link a road
     road = Layout(1000.0, np.array([100.0, 500.0]))
     assert isinstance(associator_for(road, 'multiframe', AssociatorConfig()), MultiFrameAssociator)
     with pytest.raises(TypeError):
