@@ -27,6 +27,7 @@ import sys
 import time
 from pathlib import Path
 
+from mlkm_assoc.timespace_plot import plot_beside_bag
 from mlkm_ros.log_graph import mlkm, offline, run_dirs, run_log_graph
 from mlkm_ros.processes import format_scores, replay_hint
 
@@ -87,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(f'the baseline {BASELINE} offline: accuracy {base[0]:.4f} ({base[1]}/{base[2]})')
     print(replay_hint(bag_dir, ROOT))
+    print(plot_beside_bag(bag_dir))  # of the route with the most stations
     print(f'demo-network: done in {time.monotonic() - t0:.1f} s; exit codes {live_run.codes}')
     return 0 if same else 1
 

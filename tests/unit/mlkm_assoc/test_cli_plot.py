@@ -1,4 +1,5 @@
-"""``mlkm plot`` on a tracks CSV: the hand-made case drawn to a valid PNG, and bad input."""
+"""``mlkm plot`` on a tracks CSV: the hand-made case drawn to a valid PNG, and bad input; on
+a road network the detections of one route at their distance along it."""
 
 import numpy as np
 from PIL import Image
@@ -56,6 +57,55 @@ def test_the_csv_gives_the_hand_made_figure_data_and_one_path_per_track_piece(tm
     assert [len(line) for line in lines] == [3, 2, 2]
     assert ts.link_track[first].tolist() == [10, 11, 12]
     assert np.array_equal(lines[0], [[0.0, 0.0], [4.0, 100.0], [8.0, 200.0]])
+
+
+NETWORK = """links:
+  - {id: 0, name: main, length_m: 1000}
+  - {id: 1, name: left, length_m: 600}
+  - {id: 2, name: right, length_m: 600}
+connections: [{from: 0, to: 1}, {from: 0, to: 2}]
+stations:
+  - {id: 0, link: 0, position_m: 300}
+  - {id: 1, link: 0, position_m: 800}
+  - {id: 2, link: 1, position_m: 200}
+  - {id: 3, link: 2, position_m: 300}
+"""
+# vehicle 0 turns left, vehicle 1 right; positions along each station's own link
+NETWORK_ROWS = """sensor_id,position_m,stamp_s,velocity_mps,target_id,track_id
+0,300.0,0.0,20.0,0,5
+1,800.0,25.0,20.0,0,5
+2,200.0,45.0,20.0,0,5
+0,300.0,2.0,25.0,1,6
+1,800.0,22.1,25.0,1,6
+3,300.0,42.1,25.0,1,6
+"""
+
+
+def test_a_network_csv_draws_one_route_at_its_distances(tmp_path, capsys):
+    layout, tracks = tmp_path / 'net.yaml', tmp_path / 'tracks.csv'
+    layout.write_text(NETWORK)
+    tracks.write_text(NETWORK_ROWS)
+    from mlkm_core.network_file import read_network_file
+
+    net = read_network_file(layout)
+    data = read_tracks_csv(tracks, net, 'main,right')
+    # the right branch: station 3 stands 1000 + 300 m along the route; vehicle 0's
+    # detection on the left branch is off it
+    assert data.position.tolist() == [300.0, 800.0, 300.0, 800.0, 1300.0]
+    assert data.labels.tolist() == [5, 5, 6, 6, 6]
+    assert data.stations.tolist() == [300.0, 800.0, 1300.0]
+    assert data.notes == ['1 detection(s) off the route left out']
+    assert read_tracks_csv(tracks, net).position.tolist() == [300.0, 800.0, 1200.0, 300.0,
+                                                              800.0]  # fmt: skip
+    png = tmp_path / 'route.png'
+    args = ['plot', '--input', str(tracks), '--layout', str(layout), '--output', str(png)]
+    assert cli.main([*args, '--route', 'main,right']) == 0
+    assert '5 detections, 2 tracks, 0 unassigned, 3 links, 0 wrong;' in capsys.readouterr().out
+    _assert_png(png)
+    assert cli.main([*args, '--route', 'left,right']) == 2
+    assert 'no connection joins link left to link right' in capsys.readouterr().err
+    assert cli.main(['plot', '--input', str(tracks), '--output', str(png), '--route', 'x']) == 2
+    assert '--route needs a road network' in capsys.readouterr().err
 
 
 def test_bad_input_is_one_error_line_and_nothing_is_written(tmp_path, capsys):

@@ -1,6 +1,7 @@
 """``mlkm plot``: draw the time-space diagram of a tracks CSV or a recorded bag to PNG.
 
-``mlkm plot --input TRACKS.csv|BAG --output FIGURE.png [--title TEXT]``
+``mlkm plot --input TRACKS.csv|BAG --output FIGURE.png [--title TEXT] [--layout NETWORK.yaml]
+[--route LINK,LINK,...]``
 
 Time on x, the stations' positions on y (thin grey lines); each track a line through its
 detections in one colour per track id, detections that no track took as grey crosses and,
@@ -10,6 +11,11 @@ a false alarm, in one track) in red. The input is a tracks CSV as ``mlkm associa
 truth), or a bag directory (or .mcap) recorded by the product: its ``/mlkm/tracks`` (each
 track's final version), ``/road/sensor_layout`` and ``/road/ground_truth``
 (``mlkm_assoc.timespace_bag``). The figure's content is ``mlkm_core.timespace``.
+
+On a road network (a tracks CSV with ``--layout`` naming its network layout file, or a bag of
+a network run) the diagram is that of one route (``mlkm_core.network_route``): ``--route``
+names its links, each joined to the one before by a connection; by default the route with
+the most stations. The detections off the route are left out (counted in a warning).
 
 Prints one line (detections, tracks, unassigned, links, wrong links) and the PNG's path.
 Returns 0, or 2 with one line ``mlkm plot: error: ...`` on bad input (unreadable file, no
@@ -47,6 +53,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument('--output', required=True, metavar='FIGURE.png', help='PNG file to write')
     p.add_argument(
+        '--layout',
+        metavar='NETWORK.yaml',
+        help='the network layout file of a tracks CSV written on a road network (mlkm '
+        'associate --layout); a bag carries its layout',
+    )
+    p.add_argument(
+        '--route',
+        metavar='LINK,LINK,...',
+        help='on a road network: the links of the route to draw (names or ids, each joined to '
+        'the one before); default: the route with the most stations',
+    )
+    p.add_argument(
         '--title',
         help='figure title; {summary} in it stands for the counts (default: the input name '
         'and the counts)',
@@ -74,9 +92,18 @@ def _run(argv: list[str]) -> int:
         if source.is_dir() or source.suffix == '.mcap':
             from mlkm_assoc.timespace_bag import read_bag
 
-            data = read_bag(source)
+            if args.layout:
+                raise Refused('--layout is for a tracks CSV: a bag carries its layout')
+            data = read_bag(source, route=args.route)
         else:
-            data = read_tracks_csv(source)
+            network = None
+            if args.layout:
+                from mlkm_core.network_file import read_network_file
+
+                network = read_network_file(args.layout)
+            elif args.route:
+                raise Refused('--route needs a road network: give the tracks CSV its --layout')
+            data = read_tracks_csv(source, network, args.route)
     except (OSError, ValueError) as exc:  # InputError and BagError are ValueErrors
         raise Refused(str(exc)) from None
     for note in data.notes:

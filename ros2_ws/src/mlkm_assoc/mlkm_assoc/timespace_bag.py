@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mlkm_assoc.timespace_plot import PlotInput
+from mlkm_assoc.timespace_plot import PlotInput, on_route
 from mlkm_core.timespace import NO_TRUTH
 from mlkm_core.types import FALSE_ALARM, UNASSIGNED
 from mlkm_ros import qos
@@ -59,11 +59,15 @@ def _ns(t) -> int:
     return int(t.sec) * NS_PER_S + int(t.nanosec)
 
 
-def read_bag(bag: str | Path, tracks: Iterable | None = None) -> PlotInput:
+def read_bag(
+    bag: str | Path, tracks: Iterable | None = None, route: str | None = None
+) -> PlotInput:
     """The detections of a bag with their final tracks and, when recorded, their truth.
 
     ``tracks``: TrackArray messages (rclpy's or decoded ones) to draw instead of the bag's
-    own, e.g. those of a replay of the bag into fresh nodes.
+    own, e.g. those of a replay of the bag into fresh nodes. On a road network the detections
+    of one route (``route``, link names comma-separated; None: the route with the most
+    stations; ``timespace_plot.on_route``).
 
     Raises ValueError when the bag cannot be opened or holds no tracks."""
     from mcap.exceptions import McapError
@@ -84,14 +88,15 @@ def read_bag(bag: str | Path, tracks: Iterable | None = None) -> PlotInput:
     track_of: dict[tuple, tuple | None] = {}  # detection -> (episode, track id), None
     truth_of: dict[tuple, tuple | None] = {}  # detection -> (episode, target), None = clutter
     arrays = 0
+    network = None
     topics = [LAYOUT, TRUTH] + ([TRACKS] if tracks is None else [])
     try:
         for message in reader.messages(topics=topics):
             msg = decode(message)
             if message.topic == LAYOUT:
                 if len(getattr(msg, 'link_ids', ())):
-                    # positions along different links share no axis
-                    raise ValueError(f'{bag}: a road network; the diagram draws one road')
+                    # positions along different links share no axis: one route of it
+                    network = _network(msg)
                 station_of = dict(zip(map(int, msg.sensor_ids), map(float, msg.positions)))
             elif message.topic == TRUTH:
                 stamp = _ns(msg.header.stamp)
@@ -131,16 +136,38 @@ def read_bag(bag: str | Path, tracks: Iterable | None = None) -> PlotInput:
         missing = int(np.count_nonzero(target == NO_TRUTH))
         if missing:
             notes.append(f'{missing} detection(s) without ground truth: not judged')
+    stamps = np.array([k[2] for k in keys], np.int64) / NS_PER_S
+    if network is not None:
+        index = {int(s): i for i, s in enumerate(network.station_ids)}
+        station = [index.get(k[0], -1) for k in keys]
+        return on_route(network, route, station, stamps, labels, target, str(bag), notes)
     stations = station_of or seen_at
     return PlotInput(
         position=np.array([positions[k[0]] for k in keys]),
-        stamp=np.array([k[2] for k in keys], np.int64) / NS_PER_S,
+        stamp=stamps,
         labels=labels,
         target=target,
         stations=np.array(sorted(stations.values())),
         source=str(bag),
         notes=notes,
     )
+
+
+def _network(msg):
+    """The road network of a recorded layout (a decoded message of any definition)."""
+    from mlkm_ros.network_conversions import msg_to_network
+
+    return msg_to_network(_Fields(msg))
+
+
+class _Fields:
+    """A decoded message whose fields an older definition lacks read as empty."""
+
+    def __init__(self, msg) -> None:
+        self._msg = msg
+
+    def __getattr__(self, name: str):
+        return getattr(self._msg, name, ())
 
 
 def _take_tracks(msg, track_of: dict, seen_at: dict) -> None:

@@ -47,13 +47,20 @@ class PlotInput:
     notes: list[str] = field(default_factory=list)  # what was left out, for a warning
 
 
-def read_tracks_csv(path: str | Path) -> PlotInput:
+def read_tracks_csv(path: str | Path, network=None, route: str | None = None) -> PlotInput:
     """A tracks CSV as ``mlkm associate --output`` writes it (the detections CSV plus
     ``track_id``). Rows the reader refuses (a file written with ``--skip-invalid`` keeps them,
-    with track -1) are left out and counted in ``notes``. Raises InputError."""
-    data = read_detections(path, skip_invalid=True, tracks=True)
+    with track -1) are left out and counted in ``notes``. With ``network`` (a RoadNetwork:
+    the file's rows are its stations) the detections on one route (:func:`on_route`).
+    Raises InputError, or ValueError for a bad route."""
+    data = read_detections(path, skip_invalid=True, tracks=True, network=network)
     dets = data.detections
     notes = [f'{len(data.problems)} invalid row(s) left out'] if data.problems else []
+    if network is not None:
+        return on_route(
+            network, route, dets.sensor_index, dets.stamp, data.track, dets.target, str(path),
+            notes,
+        )  # fmt: skip
     return PlotInput(
         position=data.layout.positions[dets.sensor_index],
         stamp=dets.stamp,
@@ -61,6 +68,36 @@ def read_tracks_csv(path: str | Path) -> PlotInput:
         target=dets.target,
         stations=data.layout.positions,
         source=str(path),
+        notes=notes,
+    )
+
+
+def on_route(
+    net, route: str | None, station, stamp, labels, target, source: str, notes: list[str]
+) -> PlotInput:
+    """The detections of a road network (``station``: indexes of ``net``'s stations) on one
+    route (``mlkm_core.network_route``: ``route`` names its links, comma-separated; None: the
+    route with the most stations), at their distance along it. The route's name goes into
+    ``source`` for the title; the detections elsewhere are counted in ``notes``."""
+    from mlkm_core.network_route import main_route, parse_route, route_stations
+
+    links = parse_route(net, route) if route else main_route(net)
+    along = route_stations(net, links)
+    if not along:
+        raise ValueError('route: no station stands on it')
+    station = np.asarray(station, np.int64)
+    keep = np.isin(station, list(along))
+    distance = np.array([along.get(int(s), np.nan) for s in station[keep]])
+    names = {k.link_id: k.name for k in net.links}
+    left = int(np.count_nonzero(~keep))
+    notes = notes + ([f'{left} detection(s) off the route left out'] if left else [])
+    return PlotInput(
+        position=distance,
+        stamp=np.asarray(stamp, float)[keep],
+        labels=np.asarray(labels, np.int64)[keep],
+        target=None if target is None else np.asarray(target, np.int64)[keep],
+        stations=np.array(sorted(along.values())),
+        source=f'{source} (route {" > ".join(names[k] for k in links)})',
         notes=notes,
     )
 
