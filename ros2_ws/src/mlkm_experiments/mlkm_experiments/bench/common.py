@@ -130,3 +130,17 @@ def time_speed_only(ds: Dataset) -> Dataset:
     return Dataset(
         ds.layout, Detections(d.sensor_index, d.stamp, d.velocity, d.target), ds.n_targets
     )
+
+
+def stream_rows(d: Detections) -> list[tuple[int, int, float, float, int, float]]:
+    """The arguments of a stream tracker's ``push`` for each detection of ``d``, in the order
+    a stream delivers them (stamp, then station, then index): (key = index, station, stamp
+    [s], speed [m/s], lane (-1 unknown), length [m] (NaN unknown))."""
+    n = len(d)
+    lane = d.lane if d.lane is not None else np.full(n, -1, np.int64)
+    length = d.length if d.length is not None else np.full(n, np.nan)
+    return [
+        (i, int(d.sensor_index[i]), float(d.stamp[i]), float(d.velocity[i]), int(lane[i]),
+         float(length[i]))
+        for i in np.lexsort((np.arange(n), d.sensor_index, d.stamp)).tolist()
+    ]  # fmt: skip

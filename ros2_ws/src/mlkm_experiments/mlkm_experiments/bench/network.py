@@ -18,7 +18,7 @@ from types import SimpleNamespace
 
 from mlkm_core.types import Detections
 
-from .common import PEER, Log, pct, score_row, summarise
+from .common import PEER, Log, pct, score_row, stream_rows, summarise
 
 FAMILIES = ('interchange', 'arterial', 'grid')
 SEEDS_FULL = 3
@@ -85,20 +85,7 @@ def _streamed(net, d: Detections):
 
     tracker = NetworkStreamTracker(net)
     labels = np.full(len(d), -1, np.int64)
-    lane = d.lane if d.lane is not None else np.full(len(d), -1, np.int64)
-    length = d.length if d.length is not None else np.full(len(d), np.nan)
-    updates = []
-    for i in np.lexsort((np.arange(len(d)), d.sensor_index, d.stamp)).tolist():
-        updates.append(
-            tracker.push(
-                i,
-                int(d.sensor_index[i]),
-                float(d.stamp[i]),
-                float(d.velocity[i]),
-                int(lane[i]),
-                float(length[i]),
-            )
-        )
+    updates = [tracker.push(*row) for row in stream_rows(d)]
     for update in [*updates, tracker.flush()]:
         for key, track in update.committed.tolist():
             labels[key] = track

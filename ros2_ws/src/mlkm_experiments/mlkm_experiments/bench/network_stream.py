@@ -17,7 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .common import score_row
+from .common import score_row, stream_rows
 
 #: [s] between two polls while a window solve is in flight (the node's stream worker: 2 ms)
 POLL_PERIOD = 0.002
@@ -34,34 +34,23 @@ def paced_stream(net, d, speedup: float) -> dict:
         pool.submit(int, 0).result()  # the worker is up before the clock starts
         tracker = NetworkStreamTracker(net, executor=pool)
         labels = np.full(len(d), -1, np.int64)
-        lane = d.lane if d.lane is not None else np.full(len(d), -1, np.int64)
-        length = d.length if d.length is not None else np.full(len(d), np.nan)
 
         def take(update) -> None:
             for key, track in update.committed.tolist():
                 labels[key] = track
 
-        order = np.lexsort((np.arange(len(d)), d.sensor_index, d.stamp)).tolist()
-        latency = np.zeros(len(order))
-        start, first = time.perf_counter(), float(d.stamp[order[0]])
-        for n, i in enumerate(order):
-            due = start + (float(d.stamp[i]) - first) / speedup
+        rows = stream_rows(d)
+        latency = np.zeros(len(rows))
+        start, first = time.perf_counter(), rows[0][2]
+        for n, row in enumerate(rows):
+            due = start + (row[2] - first) / speedup
             while (now := time.perf_counter()) < due:
                 if tracker.solving:
                     take(tracker.poll())
                     time.sleep(max(0.0, min(POLL_PERIOD, due - time.perf_counter())))
                 else:
                     time.sleep(due - now)
-            take(
-                tracker.push(
-                    i,
-                    int(d.sensor_index[i]),
-                    float(d.stamp[i]),
-                    float(d.velocity[i]),
-                    int(lane[i]),
-                    float(length[i]),
-                )
-            )
+            take(tracker.push(*row))
             latency[n] = time.perf_counter() - due
         take(tracker.flush())
         wall = time.perf_counter() - start

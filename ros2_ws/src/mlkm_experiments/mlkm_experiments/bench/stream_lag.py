@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import BEST, CLUTTER, Log
+from .common import BEST, CLUTTER, Log, stream_rows
 
 LAGS = (5.0, 10.0, 15.0, 30.0, 60.0)
 SIM_SEEDS = (0, 1, 2)
@@ -37,8 +37,6 @@ def stream_labels(ds, lag: float, method: str = BEST) -> np.ndarray:
     d = ds.detections
     tracker = StreamTracker(ds.layout, StreamConfig(method=method, lag=lag))
     n = len(d.stamp)
-    lane = d.lane if d.lane is not None else np.full(n, -1, np.int64)
-    length = d.length if d.length is not None else np.full(n, np.nan)
     labels = np.full(n, -1, np.int64)
     seen = np.zeros(n, bool)
 
@@ -46,17 +44,8 @@ def stream_labels(ds, lag: float, method: str = BEST) -> np.ndarray:
         for key, track in update.committed.tolist():
             labels[key], seen[key] = track, True
 
-    for i in np.lexsort((np.arange(n), d.sensor_index, d.stamp)).tolist():
-        take(
-            tracker.push(
-                i,
-                int(d.sensor_index[i]),
-                float(d.stamp[i]),
-                float(d.velocity[i]),
-                int(lane[i]),
-                float(length[i]),
-            )
-        )
+    for row in stream_rows(d):
+        take(tracker.push(*row))
     take(tracker.flush())
     if not seen.all():
         raise RuntimeError(f'{int((~seen).sum())} detections were never committed')
