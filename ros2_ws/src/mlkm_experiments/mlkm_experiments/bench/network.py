@@ -25,7 +25,7 @@ SEEDS_FULL = 3
 SEEDS_QUICK = 1
 VARIANTS = ('time_speed', 'lane_length')
 VARIANT_LABELS = {'time_speed': 'time, speed', 'lane_length': '+ lane, length'}
-#: the baseline every tracking method must beat, and the best method
+#: the baseline every tracking method must beat, and the method of the speed cell
 BASELINE = 'gmlkm'
 BEST = 'assignment'
 #: the best method as a stream (``mlkm_core.network_assoc.stream``, default settings)
@@ -177,6 +177,20 @@ def _mean(cell: dict, variant: str, method: str) -> float | None:
     return None if rec is None or rec['summary']['n'] == 0 else rec['summary']['accuracy_mean']
 
 
+def _best(cell: dict, variant: str) -> tuple[str | None, float | None]:
+    """(method, mean accuracy) of the most accurate tracking method of a cell's variant (not
+    the baseline, not the peer); (None, None) when none ran."""
+    got = [
+        (acc, m)
+        for m in cell['variants'].get(variant, {})
+        if m not in (BASELINE, PEER) and (acc := _mean(cell, variant, m)) is not None
+    ]
+    if not got:
+        return None, None
+    acc, m = max(got, key=lambda g: g[0])  # a tie: the first method run
+    return m, acc
+
+
 def report_lines(net: dict) -> list[str]:
     """The README section of the network part."""
     L = ['## Road networks: SUMO network families', '']
@@ -250,21 +264,21 @@ def network_targets(net: dict) -> list[dict]:
         fam = c['family']
         if fam in TARGETS:
             for v, want in zip(VARIANTS, TARGETS[fam], strict=True):
-                got = _mean(c, v, BEST)
+                m, got = _best(c, v)
                 check(
-                    f'network {fam}: {BEST} ({VARIANT_LABELS[v]}) >= {100 * want:g}%',
+                    f'network {fam}: the best method ({VARIANT_LABELS[v]}) >= {100 * want:g}%',
                     None if got is None else got >= want,
-                    'n/a' if got is None else f'{pct(got)}%',
+                    'n/a' if got is None else f'{m} {pct(got)}%',
                 )
-        gaps = []
+        gaps = {}  # the best method of each variant -> its points above the baseline
         for v in VARIANTS:
-            best, base = _mean(c, v, BEST), _mean(c, v, BASELINE)
+            (m, best), base = _best(c, v), _mean(c, v, BASELINE)
             if best is not None and base is not None:
-                gaps.append(100 * (best - base))
+                gaps[f'{m} ({VARIANT_LABELS[v]})'] = 100 * (best - base)
         check(
-            f'network {fam}: {BEST} >= {BASELINE} + {100 * MARGIN:g} points',
-            bool(gaps) and min(gaps) >= 100 * MARGIN,
-            ', '.join(f'{g:+.2f}' for g in gaps) + ' points',
+            f'network {fam}: the best method >= {BASELINE} + {100 * MARGIN:g} points',
+            bool(gaps) and min(gaps.values()) >= 100 * MARGIN,
+            ', '.join(f'{k} {g:+.2f}' for k, g in gaps.items()) + ' points',
         )
         behind = []  # (method, variant, points) of every tracking method below the baseline
         for m in c['variants'][VARIANTS[0]]:
