@@ -215,43 +215,50 @@ class RoadMarkers:
         """What the next MarkerArray shows (FINAL tracks that have left are dropped)."""
         layout = self._layout
         positions = layout.positions.tolist()
-        views = []
-        for track_id, p in list(self._passages.items()):
+
+        def along(p: Passage) -> tuple[float, float, bool]:
             x, limit = track_x(p, self._now_ns, positions, layout.road_length)
-            if p.status == Track.STATUS_FINAL and x >= limit:
-                if self._stream:
-                    del self._passages[track_id]
-                continue
-            committed = p.stamp_ns < self._committed_until_ns if self._stream else None
-            views.append(TrackView(int(track_id), x, committed))
+            return x, 0.0, x >= limit
+
         return Scene(
             stamp_ns=max(self._now_ns, 0),
             road_length=float(layout.road_length),
             positions=positions,
             names=list(layout.names),
             detections=[list(d) for d in self._recent],
-            tracks=views,
+            tracks=self._views(along),
             status=self._status,
         )
 
     def network_scene(self) -> tuple[int, list[TrackView], str]:
         """(stamp [ns], tracks, status) of the next MarkerArray of a network: each track on
         the link of its latest detection (FINAL tracks that have left are dropped)."""
-        g = self._geometry
-        now = self._now_ns / NS_PER_S
-        views = []
-        for track_id, p in list(self._passages.items()):
+        g, now = self._geometry, self._now_ns / NS_PER_S
+
+        def on_link(p: Passage) -> tuple[float, float, bool] | None:
             station = self._index.get(p.sensor_id)
             if station is None:
+                return None
+            return g.place(station, p.stamp_ns / NS_PER_S, p.velocity, now)
+
+        return max(self._now_ns, 0), self._views(on_link), self._status
+
+    def _views(self, place) -> list[TrackView]:
+        """Each track where ``place`` puts it ((x [m], y [m], at its clamp), or None: not
+        drawn); a FINAL track at its clamp has left: not drawn, and in stream mode dropped."""
+        views = []
+        for track_id, p in list(self._passages.items()):
+            where = place(p)
+            if where is None:
                 continue
-            x, y, reached = g.place(station, p.stamp_ns / NS_PER_S, p.velocity, now)
+            x, y, reached = where
             if p.status == Track.STATUS_FINAL and reached:
                 if self._stream:
                     del self._passages[track_id]
                 continue
             committed = p.stamp_ns < self._committed_until_ns if self._stream else None
             views.append(TrackView(int(track_id), x, committed, y))
-        return max(self._now_ns, 0), views, self._status
+        return views
 
 
 def _publish_static_transform(node: Node, parent_frame: str):

@@ -103,7 +103,7 @@ def gmlkm_associate(net: RoadNetwork, d: Detections, seed: int = 0) -> np.ndarra
         raise ValueError(f'a detection names a station outside [0, {net.n_stations})')
     piece = link_tracks(net, d, seed)
     joins = junction_joins(net, d, piece)
-    return _number_tracks(d, piece, joins)
+    return number_tracks(d, piece, joins)
 
 
 def link_tracks(
@@ -235,7 +235,7 @@ def junction_joins(net: RoadNetwork, d: Detections, piece: np.ndarray) -> list[t
     return joins
 
 
-def _number_tracks(d: Detections, piece: np.ndarray, joins: list[tuple[int, int]]) -> np.ndarray:
+def number_tracks(d: Detections, piece: np.ndarray, joins: list[tuple[int, int]]) -> np.ndarray:
     """Track id per detection: link-tracks chained by ``joins``, tracks numbered by their
     first stamp, then their first detection index."""
     n_pieces = int(piece.max()) + 1

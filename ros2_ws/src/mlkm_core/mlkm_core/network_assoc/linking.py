@@ -133,6 +133,19 @@ def candidates(
             np.concatenate(out_h))  # fmt: skip
 
 
+def link_weights(
+    hops: Hops, p: MotionParams, d: Detections, i: np.ndarray, j: np.ndarray, cost: np.ndarray
+) -> np.ndarray:
+    """What each candidate link ``i`` -> ``j`` saves: its ``cost`` minus starting a track at
+    ``j`` (the new-track cost and the stations it passed unseen since an entry) and ending
+    one at ``i`` (the stations it would pass unseen before an exit). A link is worth making
+    where this is negative."""
+    st = d.sensor_index
+    start = p.new_cost + np.minimum(hops.before[st[j]], p.max_skip + 1) * p.miss_cost
+    end = np.minimum(hops.after[st[i]], END_MISSES) * p.miss_cost
+    return cost - start - end
+
+
 def solve(
     hops: Hops,
     d: Detections,
@@ -145,11 +158,7 @@ def solve(
     """Track ids (-1: a detection left alone) and the links made."""
     n = len(d)
     i, j, cost, hop = candidates(hops, d, p, junctions, cue, lanes, per_hop)
-    st = d.sensor_index
-    start = p.new_cost + np.minimum(hops.before[st], p.max_skip + 1) * p.miss_cost
-    end = np.minimum(hops.after[st], END_MISSES) * p.miss_cost
-    weight = cost - start[j] - end[i]
-    rows, cols = match_sparse(i, j, weight, n, n)
+    rows, cols = match_sparse(i, j, link_weights(hops, p, d, i, j, cost), n, n)
     nxt = np.full(n, -1, np.int64)
     nxt[rows] = cols
     has_prev = np.zeros(n, bool)

@@ -25,12 +25,11 @@ from __future__ import annotations
 import numpy as np
 
 from mlkm_core.associators.linking import match_sparse, relabel
-from mlkm_core.model.motion import END_MISSES
 from mlkm_core.network import RoadNetwork
 from mlkm_core.network_assoc.fit import calibrate_and_link
-from mlkm_core.network_assoc.gmlkm import link_tracks
+from mlkm_core.network_assoc.gmlkm import link_tracks, number_tracks
 from mlkm_core.network_assoc.hops import Hops
-from mlkm_core.network_assoc.linking import candidates
+from mlkm_core.network_assoc.linking import candidates, link_weights
 from mlkm_core.types import Detections
 
 
@@ -42,14 +41,7 @@ def per_link_associate(
     piece = link_tracks(net, d, seed, method)
     _, model = calibrate_and_link(net, hops, d)
     joins = model_joins(net, hops, d, piece, model)
-    nxt = dict(joins)
-    starts = sorted(set(range(int(piece.max()) + 1)) - set(nxt.values()))
-    chain = np.empty(int(piece.max()) + 1, np.int64)
-    for c, a in enumerate(starts):
-        while a is not None:
-            chain[a] = c
-            a = nxt.get(a)
-    return relabel(chain[piece])  # a track of one detection: unassigned
+    return relabel(number_tracks(d, piece, joins))  # a track of one detection: unassigned
 
 
 def model_joins(net: RoadNetwork, hops: Hops, d: Detections, piece: np.ndarray, model):
@@ -71,10 +63,7 @@ def model_joins(net: RoadNetwork, hops: Hops, d: Detections, piece: np.ndarray, 
     link = net.station_links[d.sensor_index]
     keep = (is_tail[i] >= 0) & (is_head[j] >= 0) & (link[i] != link[j])
     i, j, cost = i[keep], j[keep], cost[keep]
-    mp, st = m.motion, d.sensor_index
-    start = mp.new_cost + np.minimum(hops.before[st], mp.max_skip + 1) * mp.miss_cost
-    end = np.minimum(hops.after[st], END_MISSES) * mp.miss_cost
-    weight = cost - start[j] - end[i]
+    weight = link_weights(hops, m.motion, d, i, j, cost)
     n = int(piece.max()) + 1
     rows, cols = match_sparse(is_tail[i], is_head[j], weight, n, n)
     return list(zip(rows.tolist(), cols.tolist()))

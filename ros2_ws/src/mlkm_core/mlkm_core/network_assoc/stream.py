@@ -49,11 +49,10 @@ from typing import Any
 
 import numpy as np
 
-from mlkm_core.model.motion import END_MISSES
 from mlkm_core.network import RoadNetwork
 from mlkm_core.network_assoc import MAX_SKIP, network_hops
 from mlkm_core.network_assoc.fit import NetworkModel
-from mlkm_core.network_assoc.linking import candidates
+from mlkm_core.network_assoc.linking import candidates, link_weights
 from mlkm_core.network_assoc.stream_book import Changes, NetworkStreamConfig, TrackBook
 from mlkm_core.network_assoc.stream_window import (
     WindowJob,
@@ -206,11 +205,8 @@ class NetworkStreamTracker(TrackBook):
                 self._hops, d, m.motion, m.junctions, cue, m.lanes, m.per_hop, self._into[station]
             )
             to_new = j == len(tails)  # the links into the new detection
-            i, cost = i[to_new], cost[to_new]
-            hops, p = self._hops, m.motion
-            start = p.new_cost + min(hops.before[station], p.max_skip + 1) * p.miss_cost
-            end = np.minimum(hops.after[d.sensor_index[i]], END_MISSES) * p.miss_cost
-            weight = cost - start - end
+            i = i[to_new]
+            weight = link_weights(self._hops, m.motion, d, i, j[to_new], cost[to_new])
             if weight.size and weight.min() < 0:
                 tid, first = tails[int(i[np.argmin(weight)])]
                 if tid < 0:  # the two start a track
