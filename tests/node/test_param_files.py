@@ -9,7 +9,7 @@ import pytest
 import yaml
 from ament_index_python.packages import get_package_share_directory
 
-from mlkm_assoc import association_node, scorer_node
+from mlkm_assoc import association_node, scorer_node, track_merge
 from road_sensors import log_params, sensor_sim, sumo_params
 from rosbag_mcap import settings
 
@@ -21,6 +21,7 @@ from rosbag_mcap import settings
         ('road_sensors', 'log_source', log_params.SPECS),
         ('mlkm_assoc', 'association_node', association_node.SPECS),
         ('mlkm_assoc', 'scorer_node', scorer_node.SPECS),
+        ('mlkm_assoc', 'track_merge', track_merge.SPECS),
     ],
 )
 def test_param_file_matches_declared_defaults(package, node, specs) -> None:
@@ -40,6 +41,7 @@ ALL_NODES = [
     ('log_source', log_params.SPECS),
     ('association_node', association_node.SPECS),
     ('scorer_node', scorer_node.SPECS),
+    ('track_merge', track_merge.SPECS),
     ('bag_recorder', settings.RECORDER_PARAMS),
     ('bag_player', settings.PLAYER_PARAMS),
 ]

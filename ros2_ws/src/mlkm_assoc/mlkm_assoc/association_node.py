@@ -36,6 +36,7 @@ from mlkm_assoc.association_params import (
 )
 from mlkm_assoc.encoding import Update, encode
 from mlkm_assoc.modes import ModeSwitch
+from mlkm_assoc.shard_link import SHARD_PARAMS, ShardLink, source_topic
 from mlkm_assoc.solver import SolverProcess
 from mlkm_assoc.stream_worker import prestart
 from mlkm_core.associators.base import AssociatorConfig
@@ -85,6 +86,8 @@ class AssociationNode(Node):
         max_uncommitted: int = values.pop('max_uncommitted')
         wait_for_track_subscribers: int = values.pop('wait_for_track_subscribers')
         markers = [values.pop(name) for name in MARKER_PARAMS]
+        self._source_ns: str = values.pop('source_namespace')
+        shard = [values.pop(name) for name in SHARD_PARAMS]
         # the values given on the command line or in a params file (rclpy keeps them as the
         # node's parameter overrides)
         given = set(getattr(self, '_parameter_overrides', {}))
@@ -101,7 +104,7 @@ class AssociationNode(Node):
         self._publisher_check = PublisherCheck(self, DETECTION_TYPE, qos.DETECTIONS_QOS)
         self._prefix_re = re.compile(
             '^'
-            + re.escape(self.resolve_topic_name(qos.DETECTIONS_PREFIX))
+            + re.escape(source_topic(self, self._source_ns, qos.DETECTIONS_PREFIX))
             + r'/([^/]+)/detections$'
         )
         self._tracks_pub = HeldPublisher(
@@ -113,11 +116,24 @@ class AssociationNode(Node):
             DiagnosticArray, qos.DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS_QOS
         )
         self._layout_sub = self.create_subscription(
-            SensorLayout, qos.LAYOUT_TOPIC, self._on_layout, qos.LAYOUT_QOS
+            SensorLayout,
+            source_topic(self, self._source_ns, qos.LAYOUT_TOPIC),
+            self._on_layout,
+            qos.LAYOUT_QOS,
         )
         self._episode_sub = self.create_subscription(
-            EpisodeInfo, qos.EPISODE_TOPIC, self._on_episode, qos.EPISODE_QOS
+            EpisodeInfo,
+            source_topic(self, self._source_ns, qos.EPISODE_TOPIC),
+            self._on_episode,
+            qos.EPISODE_QOS,
         )
+        self._shards: ShardLink | None = None
+        if shard[1] > 1:  # (index, count, margin, horizon)
+            if mode != 'stream':
+                raise ParameterError('shards (shard_count > 1) run in mode stream only')
+            if shard[0] >= shard[1]:
+                raise ParameterError(f'shard_index {shard[0]} is not below shard_count {shard[1]}')
+            self._shards = ShardLink(self, *shard)
         self._tick_timer = self.create_timer(0.25, self._on_tick)
         self._diag_timer = self.create_timer(self._diag_period, self.publish_diagnostics)
         self._worker = threading.Thread(target=self._work, name='publisher', daemon=True)
@@ -131,6 +147,7 @@ class AssociationNode(Node):
             stream_method,
             max_uncommitted=max_uncommitted,
             on_publish=self._markers.tracks,
+            publish_handoff=None if self._shards is None else self._shards.publish,
         )
         self.get_logger().info(
             f'method {self._config.method}, segment_size {self._config.segment_size}, '
@@ -175,7 +192,14 @@ class AssociationNode(Node):
     def _on_layout(self, msg: SensorLayout) -> None:
         try:
             layout, lane_counts, entries, exits = read_layout(msg)
-            wanted = {self.resolve_topic_name(qos.detections_topic(n)) for n in layout.names}
+            role = None
+            if self._shards is not None:
+                if isinstance(layout, NetworkStations):
+                    raise ValueError('shards split a road; a road network is taken whole')
+                layout, lane_counts, role = self._shards.region(layout, lane_counts)
+            wanted = {
+                source_topic(self, self._source_ns, qos.detections_topic(n)) for n in layout.names
+            }
         except Exception as exc:  # noqa: BLE001 - invalid values or sensor names
             self._assembler.rejected['invalid_layout'] += 1
             self.get_logger().error(
@@ -192,7 +216,9 @@ class AssociationNode(Node):
         published_ns = conv.time_to_ns(msg.header.stamp)
         if not self._assembler.set_layout(layout, time.monotonic(), published_ns, lane_counts):
             return
-        self._modes.layout(msg, layout, lane_counts)
+        self._modes.layout(msg, layout, lane_counts, role)
+        if self._shards is not None:
+            self._shards.connect(self._modes.stream.handoff)
         if self._assembler.runs != runs:
             self.get_logger().info('a new layout: a new run of the source begins')
         for topic in list(self._det_subs):
@@ -339,6 +365,8 @@ class AssociationNode(Node):
             self._config, self._assembler, self._publisher_check.incompatible
         )
         self._modes.diagnostics(values)
+        if self._shards is not None:
+            self._shards.diagnostics(values)
         values['tracks_held'] = self._tracks_pub.held
         return values
 

@@ -9,6 +9,7 @@ every default for users (a test keeps them equal).
 from __future__ import annotations
 
 from mlkm_assoc.episodes import AssociationConfig
+from mlkm_assoc.shard_link import SHARD_PARAMS, SHARD_SPECS
 from mlkm_core.associators.base import available_methods
 from mlkm_core.streaming.config import StreamConfig
 from mlkm_ros.params import ParamSpec, positive
@@ -25,7 +26,9 @@ NODE_PARAMS = (
     'warn_rejected_fraction',
     'max_uncommitted',
     'wait_for_track_subscribers',
+    'source_namespace',
     *STREAM_PARAMS,
+    *SHARD_PARAMS,
 )
 _DEFAULTS = AssociationConfig()
 _STREAM = StreamConfig()
@@ -251,4 +254,5 @@ SPECS = [
         0.0,
         1.0,
     ),
+    *SHARD_SPECS,
 ]

@@ -47,8 +47,10 @@ class ModeSwitch:
         method: str,
         max_uncommitted: int = 0,
         on_publish: Callable[[bytes], None] | None = None,
+        publish_handoff: Callable[[bytes], None] | None = None,
     ) -> None:
         self._node = node
+        self._publish_handoff = publish_handoff  # a shard's TrackHandoff publisher
         self._publisher = publisher
         self._on_publish = on_publish  # also given every TrackArray published
         self.setting = mode
@@ -73,12 +75,17 @@ class ModeSwitch:
             discard_prestarted()
 
     # --- inputs from the node -------------------------------------------------------------
-    def layout(self, msg: SensorLayout, layout, lane_counts) -> None:
+    def layout(self, msg: SensorLayout, layout, lane_counts, shard=None) -> None:
         """A new layout (already validated). The entries and exits of a road network are in
-        its stations' layout (``NetworkStations``), not positions along one road."""
+        its stations' layout (``NetworkStations``), not positions along one road. ``shard``:
+        ``layout`` is this shard's region of the road (a ``ShardRole``)."""
         network = isinstance(layout, NetworkStations)
         entries, exits = ((), ()) if network else conv.layout_ramps(msg)
-        self._layout = (layout, lane_counts, entries, exits)
+        if shard is not None:
+            lo, hi = layout.positions[0], layout.positions[-1]
+            entries = tuple(e for e in entries if lo <= e <= hi)
+            exits = tuple(e for e in exits if lo <= e <= hi)
+        self._layout = (layout, lane_counts, entries, exits, shard)
         if self.stream is not None:
             self.stream.set_layout(*self._layout)
 
@@ -196,7 +203,12 @@ class ModeSwitch:
                     self._on_publish(data)
 
         self.stream = StreamMode(
-            settings, cfg.bounds(), publish, log, on_reject=self._node._on_reject
+            settings,
+            cfg.bounds(),
+            publish,
+            log,
+            on_reject=self._node._on_reject,
+            publish_handoff=self._publish_handoff,
         )
         stream = self.stream
         self._clock = self._node.create_timer(CLOCK_PERIOD, lambda: stream.clock(time.monotonic()))

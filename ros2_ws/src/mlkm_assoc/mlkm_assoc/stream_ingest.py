@@ -67,12 +67,15 @@ class StreamIngest(HoldsEarly):
         lane_counts: tuple[int, ...] | None,
         entries: tuple[float, ...],
         exits: tuple[float, ...],
+        shard=None,
     ) -> None:
+        """``shard``: the tracker is a shard of a longer road (a ``ShardRole``) and
+        ``layout`` its region."""
         self.layout = layout
         self._check.set_layout(layout, lane_counts)
         self._seen.clear()
         self._seen_order.clear()
-        self._send(('layout', layout, entries, exits))
+        self._send(('layout', layout, entries, exits, shard))
         held, self._held = self._held, []
         self._place_held(held)
 

@@ -70,8 +70,11 @@ class StreamMode:
         publish: Callable[[bytes], None],
         log: Callable[[str, str], None],
         on_reject: Callable[[str, str], None] | None = None,
+        publish_handoff: Callable[[bytes], None] | None = None,
     ) -> None:
+        """``publish_handoff`` publishes a serialized TrackHandoff (a shard's)."""
         self.settings = settings
+        self._publish_handoff = publish_handoff
         # the executor thread takes the GIL for every detection; the queue's feeder thread and
         # the publisher thread must get it within a millisecond, not the default 5 ms
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
@@ -101,12 +104,17 @@ class StreamMode:
         self._thread.start()
 
     # --- inputs (executor thread) ---------------------------------------------------------
-    def set_layout(self, layout: Layout, lane_counts, entries, exits) -> None:
-        self.ingest.set_layout(layout, lane_counts, entries, exits)
+    def set_layout(self, layout: Layout, lane_counts, entries, exits, shard=None) -> None:
+        self.ingest.set_layout(layout, lane_counts, entries, exits, shard)
         self._log('info', f'stream mode: {layout.n_sensors} sensors, lag {self.settings.lag:g} s')
 
     def add(self, *args) -> None:
         self.ingest.add(*args)
+
+    def handoff(self, offers: list, upstream_until: float) -> None:
+        """Offers of the upstream shard [(track id, detection join key)] and its commit time
+        [s], for the tracker process (never refused)."""
+        self._process.put(('handoff', offers, upstream_until))
 
     def wait_ready(self, timeout: float) -> bool:
         """Wait until the tracker process has warmed up (its imports, the first solve); False
@@ -149,6 +157,8 @@ class StreamMode:
         if answer.data is not None:
             self._publish(answer.data)
             self.published += 1
+        if answer.handoff is not None and self._publish_handoff is not None:
+            self._publish_handoff(answer.handoff)
         now = time.monotonic()
         with self._lock:
             self.latencies.extend(now - t for t in answer.received_at)

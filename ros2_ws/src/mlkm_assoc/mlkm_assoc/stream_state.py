@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from mlkm_assoc.reorder import ReorderBuffer
+from mlkm_assoc.stream_shard import ShardPublisher, ShardRole
 from mlkm_core.types import Layout
 
 NS_PER_S = 1_000_000_000
@@ -53,7 +54,8 @@ class TrackerSettings:
 
 
 #: A queued detection: ('det', key, sensor index, sensor id, stamp ns, velocity, position,
-#: lane, length, monotonic arrival time). Other items: ('layout', Layout, entries, exits),
+#: lane, length, monotonic arrival time). Other items: ('layout', Layout, entries, exits,
+#: ShardRole or None), ('handoff', offers, upstream committed_until [s]) (a shard's),
 #: ('flush', monotonic time), ('tick', monotonic time: the node's clock while nothing
 #: arrives) and None (stop).
 Item = tuple
@@ -80,15 +82,20 @@ class Answer:
     dequeued_at: list[float] = field(default_factory=list)
     released_at: list[float] = field(default_factory=list)
     sent_at: float = math.nan  # monotonic time the answer was sent to the node
+    handoff: bytes | None = None  # CDR of a TrackHandoff to publish (a shard's tracker)
 
 
 class TrackerState:
     """The tracker and the data of the detections it may still publish (ROS-free apart from
     ``encode``, which turns a batch into a serialized TrackArray)."""
 
-    def __init__(self, settings: TrackerSettings, encode, executor=None) -> None:
+    def __init__(
+        self, settings: TrackerSettings, encode, executor=None, encode_handoff=None
+    ) -> None:
         self._settings = settings
         self._encode = encode
+        self._encode_handoff = encode_handoff  # serializes a TrackHandoff (shards only)
+        self._shard: ShardPublisher | None = None
         self._executor = executor  # runs the tracker's window solves (None: inside push)
         self._tracker = None
         self._layout: Layout | None = None
@@ -114,10 +121,11 @@ class TrackerState:
         self._next_id = 0  # past every track id published so far
 
     # --- inputs ---------------------------------------------------------------------------
-    def set_layout(self, layout: Layout, entries, exits) -> Answer:
+    def set_layout(self, layout: Layout, entries, exits, shard: ShardRole | None = None) -> Answer:
         """A new road, a new run: the old tracker is flushed first (its tracks become
         FINAL); the first road of the process announces its run with an empty TrackArray,
-        which tells consumers that the tracks of a run before a restart have ended."""
+        which tells consumers that the tracks of a run before a restart have ended.
+        ``shard``: the layout is a shard's region (:mod:`mlkm_assoc.stream_shard`)."""
         answer = self.flush(time.monotonic()) if self._tracker is not None else None
         from mlkm_core.network_assoc.stations import NetworkStations
         from mlkm_core.network_assoc.stream import NetworkStreamConfig, NetworkStreamTracker
@@ -135,6 +143,10 @@ class TrackerState:
                 executor=self._executor,
             )
         self.run = max(time.time_ns() // 1000, self._next_id)
+        self._shard = None
+        if shard is not None:
+            self._shard = ShardPublisher(shard, self._encode_handoff)
+            self.run = shard.first_id(self.run)
         self._layout = layout
         self._network = isinstance(layout, NetworkStations)  # tracks ordered by stamp
         self._reorder = ReorderBuffer(layout.n_sensors)
@@ -188,7 +200,7 @@ class TrackerState:
                 0,
                 error='detections before the layout reached the tracker process',
             )
-        merged = _Merged()
+        merged = _Merged(self._track_id)
         received = []
         t0 = time.perf_counter()
         error = None
@@ -206,7 +218,7 @@ class TrackerState:
                 error = f'tracker refused detection {key}: {type(exc).__name__}: {exc}'
                 merged.unassigned[key] = None
                 continue
-            merged.add(update, self.run)
+            merged.add(update)
         return self._answer(merged, received, time.perf_counter() - t0, error)
 
     def defer_solves(self, on: bool) -> None:
@@ -224,10 +236,10 @@ class TrackerState:
         if not self.solving:
             return None
         t0 = time.perf_counter()
-        merged = _Merged()
+        merged = _Merged(self._track_id)
         error = None
         try:
-            merged.add(self._tracker.poll(), self.run)
+            merged.add(self._tracker.poll())
         except Exception as exc:  # noqa: BLE001 - reported
             error = f'tracker poll failed: {type(exc).__name__}: {exc}'
         if not (merged.tracks or merged.unassigned or merged.committed or error):
@@ -236,11 +248,11 @@ class TrackerState:
 
     def flush(self, now: float) -> Answer:
         t0 = time.perf_counter()
-        merged = _Merged()
+        merged = _Merged(self._track_id)
         error = None
         if self._tracker is not None:
             try:
-                merged.add(self._tracker.flush(), self.run)
+                merged.add(self._tracker.flush())
             except Exception as exc:  # noqa: BLE001 - reported
                 error = f'tracker flush failed: {type(exc).__name__}: {exc}'
             self.counts['flushes'] += 1
@@ -248,7 +260,21 @@ class TrackerState:
         answer.flushed = True
         return answer
 
+    def take_handoff(self, offers, upstream_until: float) -> Answer | None:
+        """The upstream shard's offers [(track id, detection id)] and commit time [s]; an
+        Answer carrying the TrackHandoff of the continuations that decided."""
+        if self._shard is None:
+            return None
+        data = self._shard.take(offers, upstream_until, self.run)
+        answer = Answer(None, [], 0, 0, 0.0, self.committed_until, self.newest, 0, 0)
+        answer.handoff = data
+        return answer
+
     # --- output ---------------------------------------------------------------------------
+    def _track_id(self, n: int) -> int:
+        """The published id of the tracker's track ``n``."""
+        return self.run + n if self._shard is None else self._shard.role.track_id(self.run, n)
+
     def _publish_row(self, key: int, track_id: int) -> tuple | None:
         """The row of detection ``key`` as published in track ``track_id`` (-1: unassigned),
         counting a changed link as revised; None when its row is gone."""
@@ -266,6 +292,7 @@ class TrackerState:
     ) -> Answer:
         tracks = []
         missing = 0
+        shard = self._shard
         for track_id, (status, keys) in merged.tracks.items():
             held = []
             for k in keys.tolist():
@@ -274,6 +301,10 @@ class TrackerState:
                     missing += 1
                 else:
                     held.append(row)
+            if shard is not None:
+                held = shard.own_rows(track_id, status, held)
+                if held is None:
+                    continue
             tracks.append((track_id, status, held))
             self._count_status(track_id, status)
             self._next_id = max(self._next_id, track_id + 1)
@@ -284,7 +315,7 @@ class TrackerState:
             row = self._publish_row(k, -1)
             if row is None:
                 missing += 1
-            else:
+            elif shard is None or shard.is_own(row):
                 unassigned.append(row)
         if missing:
             self.counts['missing_rows'] = self.counts.get('missing_rows', 0) + missing
@@ -307,8 +338,16 @@ class TrackerState:
                 run=self.run,
                 by_stamp=self._network,
             )
+        handoff = None
+        if shard is not None:
+            rows = [(t, self._rows[k]) for k, t in merged.committed if k in self._rows]
+            if rows or data is not None:
+                handoff = shard.commit(rows, self.committed_until, self.newest, self.run)
         self._forget(merged)
         stats = dict(self.counts)
+        if shard is not None:
+            stats.update(shard.counts)
+            stats['handoff_pending'] = shard.desk.pending
         if self._tracker is not None:
             counters = self._tracker.stats
             counters = counters() if callable(counters) else counters
@@ -328,6 +367,7 @@ class TrackerState:
             held=len(self._rows),
             stats=stats,
             error=error,
+            handoff=handoff,
         )
 
     def _count_status(self, track_id: int, status: int) -> None:
@@ -374,23 +414,26 @@ class _Merged:
     """The updates of one batch folded into one: the latest state of each changed track,
     under its published id (the run's first id + the core's id)."""
 
-    def __init__(self) -> None:
+    def __init__(self, track_id) -> None:
+        self._track_id = track_id  # the tracker's track number -> its published id
         self.tracks: dict[int, tuple[int, np.ndarray]] = {}
         self.in_tracks: set[int] = set()
         self.unassigned: dict[int, None] = {}
         self.committed: list[tuple[int, int]] = []
         self.committed_until = -math.inf
 
-    def add(self, update, run: int) -> None:
+    def add(self, update) -> None:
         for t in update.tracks:
             keys = np.asarray(t.keys, np.int64)
-            self.tracks[run + int(t.track_id)] = (int(t.status), keys)
+            self.tracks[self._track_id(int(t.track_id))] = (int(t.status), keys)
             self.in_tracks.update(keys.tolist())
         for k in np.asarray(update.unassigned, np.int64).tolist():
             self.unassigned[k] = None
             self.in_tracks.discard(k)
         rows = np.asarray(update.committed, np.int64).reshape(-1, 2)
-        self.committed.extend((int(a), run + int(b) if b >= 0 else -1) for a, b in rows.tolist())
+        self.committed.extend(
+            (int(a), self._track_id(int(b)) if b >= 0 else -1) for a, b in rows.tolist()
+        )
         self.committed_until = max(self.committed_until, float(update.committed_until))
 
 
@@ -406,3 +449,12 @@ def encode_tracks(**kwargs) -> bytes:
 
     msg = stream_tracks_to_msg(stamp_ns=time.time_ns(), **kwargs)
     return serialize_message(msg)
+
+
+def encode_handoff(**kwargs) -> bytes:
+    """A TrackHandoff, serialized (runs in the tracker process of a shard)."""
+    from rclpy.serialization import serialize_message
+
+    from mlkm_ros.handoff_conversions import handoff_to_msg
+
+    return serialize_message(handoff_to_msg(stamp_ns=time.time_ns(), **kwargs))

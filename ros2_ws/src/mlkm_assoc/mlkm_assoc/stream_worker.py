@@ -41,6 +41,7 @@ from mlkm_assoc.stream_state import (
     Item,
     TrackerSettings,
     TrackerState,
+    encode_handoff,
     encode_tracks,
 )
 from mlkm_core.types import Layout
@@ -254,7 +255,7 @@ def _serve(items, answers, parent: int, solver_ends=None, inherited=()) -> None:
     settings: TrackerSettings = first[1]
     _warm_up(settings)
     executor = SolverClient(solver_ends) if solver_ends is not None else None
-    state = TrackerState(settings, encode_tracks, executor)
+    state = TrackerState(settings, encode_tracks, executor, encode_handoff)
     answers.send(READY)
     while True:
         try:
@@ -284,6 +285,8 @@ def _serve(items, answers, parent: int, solver_ends=None, inherited=()) -> None:
                 state.hold(item)
             elif item[0] == 'tick':
                 state.tick(item[1])
+            elif item[0] == 'handoff':
+                _send(answers, state.take_handoff(*item[1:]))
             else:
                 _send(answers, state.release(drain=True))
                 if item[0] == 'layout':

@@ -24,6 +24,8 @@ TRACKS_TOPIC = 'mlkm/tracks'
 SCORE_TOPIC = 'mlkm/score'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 MARKERS_TOPIC = 'mlkm/markers'
+#: Absolute: the shards of one road share it whatever their namespaces.
+HANDOFF_TOPIC = '/mlkm/handoff'
 TF_STATIC_TOPIC = '/tf_static'
 CLOCK_TOPIC = '/clock'
 
@@ -80,6 +82,11 @@ CLOCK_QOS = _keep_last(1, DurabilityPolicy.VOLATILE)
 #: /mlkm/markers: reliable; transient_local depth 1, so a display that joins late gets the
 #: latest picture at once (the node publishes only when it changed).
 MARKERS_QOS = _keep_last(1, DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: /mlkm/handoff: reliable, transient_local, the last HANDOFF_HISTORY_DEPTH messages of each
+#: shard: a shard that restarts takes up the offers it missed.
+HANDOFF_HISTORY_DEPTH = 1000
+HANDOFF_QOS = _keep_last(HANDOFF_HISTORY_DEPTH, DurabilityPolicy.TRANSIENT_LOCAL)
 
 #: /tf_static: reliable, transient_local, depth 1 (what tf2's static broadcasters offer).
 TF_STATIC_QOS = _keep_last(1, DurabilityPolicy.TRANSIENT_LOCAL)

@@ -20,6 +20,7 @@ class DeliveryConfig:
     publish_clock: bool
     wait_for_subscribers: int
     wait_for_truth_subscribers: int
+    wait_for_subscriptions: int
     wait_timeout: float
     start_delay: float
     ack_timeout: float
@@ -50,6 +51,16 @@ def delivery_specs(text: dict[str, str]) -> list[ParamSpec]:
             text['wait_for_truth_subscribers'],
             0,
             1000,
+            read_only=True,
+        ),
+        ParamSpec(
+            'wait_for_subscriptions',
+            0,
+            'before the start, also wait until the detection topics count this many '
+            'subscriptions together (shards of a road: each subscribes to its own stations and '
+            'its margins, so no single count per topic tells that all are there) [-]',
+            0,
+            10_000_000,
             read_only=True,
         ),
         ParamSpec('wait_timeout', 60.0, _WAIT_TIMEOUT, 0.0, 1e9, read_only=True),

@@ -137,16 +137,16 @@ class SensorSource(Node):
         return [*self._det_pubs, self._truth_pub, *extra]
 
     def _subscription_counts(self) -> tuple[int, int] | None:
-        """(fewest subscribers of a detection topic, ground-truth subscribers); None when
-        interrupted (the context may vanish between two counts)."""
+        """(fewest subscribers of a detection topic, their sum, ground-truth subscribers);
+        None when interrupted (the context may vanish between two counts)."""
         try:
-            least = min(p.publisher.get_subscription_count() for p in self._det_pubs)
+            counts = [p.publisher.get_subscription_count() for p in self._det_pubs]
             truth = self._truth_pub.publisher.get_subscription_count()
         except RCLError:
             if self._interrupted():
                 return None
             raise
-        return least, truth
+        return min(counts), sum(counts), truth
 
     def _wait_for_subscribers(self) -> bool:
         cfg: DeliveryConfig = self._config
@@ -156,20 +156,26 @@ class SensorSource(Node):
             counts = self._subscription_counts()
             if counts is None:
                 return False
-            least, truth = counts
-            if least >= cfg.wait_for_subscribers and truth >= cfg.wait_for_truth_subscribers:
+            least, total, truth = counts
+            if (
+                least >= cfg.wait_for_subscribers
+                and total >= cfg.wait_for_subscriptions
+                and truth >= cfg.wait_for_truth_subscribers
+            ):
                 return True
             if not announced:
                 self.get_logger().info(
                     f'waiting for {cfg.wait_for_subscribers} subscriber(s) on every detection '
-                    f'topic and {cfg.wait_for_truth_subscribers} on ground truth'
+                    f'topic ({cfg.wait_for_subscriptions} on them all) and '
+                    f'{cfg.wait_for_truth_subscribers} on ground truth'
                 )
                 announced = True
             if deadline is not None and time.monotonic() > deadline:
                 self._fail(
                     f'no subscribers after {cfg.wait_timeout:g} s: detection topics have '
-                    f'{least} (need {cfg.wait_for_subscribers}), ground truth has '
-                    f'{truth} (need {cfg.wait_for_truth_subscribers})'
+                    f'{least} (need {cfg.wait_for_subscribers}), {total} together (need '
+                    f'{cfg.wait_for_subscriptions}), ground truth has {truth} (need '
+                    f'{cfg.wait_for_truth_subscribers})'
                 )
                 return False
             self._stop.wait(0.05)
