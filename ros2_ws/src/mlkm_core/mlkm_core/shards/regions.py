@@ -75,12 +75,12 @@ def split_road(
         raise ValueError('loads must be finite and non-negative, one per station')
     if w.sum() <= 0:
         w = np.ones(n_sensors)
-    # cut after the station where the cumulative load passes k/count of the total, keeping
+    # cut after the station whose cumulative load is nearest k/count of the total, keeping
     # at least one station per region
     cum = np.cumsum(w) / w.sum()
     cuts = [0]
     for k in range(1, count):
-        c = int(np.searchsorted(cum, k / count - 1e-12) + 1)
+        c = int(np.argmin(np.abs(cum - k / count))) + 1
         c = min(max(c, cuts[-1] + 1), n_sensors - (count - k))
         cuts.append(c)
     cuts.append(n_sensors)
