@@ -91,9 +91,10 @@ class Road:
         s = int(d.sensor_index[i])
         for k, r in enumerate(self.regions):
             if s in r.stations:
-                item = ('det', i, r.stations.index(s), int(self.road.sensor_ids[s]),
-                        round(float(d.stamp[i]) * 1e9), float(d.velocity[i]),
-                        float(self.road.positions[s]), int(d.lane[i]), float(d.length[i]), 0.0)  # fmt: skip
+                stamp_ns = round(float(d.stamp[i]) * 1e9)
+                where = (r.stations.index(s), int(self.road.sensor_ids[s]), stamp_ns)
+                measured = (float(d.velocity[i]), float(self.road.positions[s]))
+                item = ('det', i, *where, *measured, int(d.lane[i]), float(d.length[i]), 0.0)
                 self.route(k, self.states[k].push_batch([item]))
 
     def flush(self) -> None:

@@ -123,25 +123,22 @@ def row(sensor: int, stamp: float, position: float):
     return (sensor, round(stamp * NS), 10.0, position, 0, math.nan)
 
 
-def test_the_merge_joins_pieces_under_the_upstream_id_in_either_order() -> None:
-    for handoff_first in (False, True):
-        m = TrackMerge(2, horizon=60.0)
-        up, here = 0 * MAX_SHARDS + 0, 1 * MAX_SHARDS + 1
-        out = m.add_tracks(0, 1, [(up, FINAL, [row(0, 1, 0), row(1, 2, 10)])], [], 5.0)
-        assert out.tracks[0][1] == CONFIRMED  # shard 0 has not settled past it yet
-        steps = [
-            lambda: m.add_handoff(1, 1, [], [(up, here)], 5.0, 9.0),
-            lambda: m.add_tracks(1, 1, [(here, FINAL, [row(2, 3, 20)])], [], 9.0),
-        ]
-        outs = [s() for s in (steps[::-1] if not handoff_first else steps)]
-        final = m.add_handoff(0, 1, [(up, 2.0)], [], 5.0, 2.0)
-        last = (outs + [final])[-1].tracks
-        merged = {t: (st, rows) for t, st, rows in sum((o.tracks for o in outs + [final]), [])}
-        assert merged[up][1] == [row(0, 1, 0), row(1, 2, 10), row(2, 3, 20)]
-        assert any(t == up and st == FINAL for t, st, _ in last)
-        if not handoff_first:  # the downstream piece was shown on its own first: retired
-            assert merged[here] == (FINAL, [])
-            assert m.retired == 1
+@pytest.mark.parametrize('handoff_first', [False, True], ids=['tracks_first', 'handoff_first'])
+def test_the_merge_joins_pieces_under_the_upstream_id_in_either_order(handoff_first) -> None:
+    m = TrackMerge(2, horizon=60.0)
+    up, here = 0 * MAX_SHARDS + 0, 1 * MAX_SHARDS + 1
+    out = m.add_tracks(0, 1, [(up, FINAL, [row(0, 1, 0), row(1, 2, 10)])], [], 5.0)
+    assert out.tracks[0][1] == CONFIRMED  # shard 0 has not settled past it yet
+    handoff = (m.add_handoff, (1, 1, [], [(up, here)], 5.0, 9.0))
+    tracks = (m.add_tracks, (1, 1, [(here, FINAL, [row(2, 3, 20)])], [], 9.0))
+    outs = [f(*a) for f, a in ([handoff, tracks] if handoff_first else [tracks, handoff])]
+    outs.append(m.add_handoff(0, 1, [(up, 2.0)], [], 5.0, 2.0))
+    merged = {t: (st, rows) for o in outs for t, st, rows in o.tracks}
+    assert merged[up][1] == [row(0, 1, 0), row(1, 2, 10), row(2, 3, 20)]
+    assert any(t == up and st == FINAL for t, st, _ in outs[-1].tracks)
+    if not handoff_first:  # the downstream piece was shown on its own first: retired
+        assert merged[here] == (FINAL, [])
+        assert m.retired == 1
 
 
 def test_an_offer_nobody_takes_ends_the_track_after_the_horizon() -> None:
