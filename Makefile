@@ -6,7 +6,7 @@ SHELL := /bin/bash
 ENV := source ./env.sh >/dev/null &&
 BAG ?= bags/sample
 
-.PHONY: help setup demo demo-stream demo-real demo-network test test-fast lint experiments replay bench clean
+.PHONY: help setup demo demo-stream demo-real demo-network demo-shards test test-fast lint experiments replay bench clean
 
 help:
 	@echo 'make <target>:'
@@ -15,6 +15,7 @@ help:
 	@echo '  demo-stream    the open road in stream mode (SUMO sensors); a bag in bags/'
 	@echo '  demo-real      real NGSIM traffic replayed from a detector log (log_source); a bag in bags/'
 	@echo '  demo-network   the graph on a SUMO road network with junctions (an interchange); a bag'
+	@echo '  demo-shards    a long road split over 4 association nodes with track hand-off; a bag'
 	@echo '  test           ruff and every test tier (what CI runs: .ci/run)'
 	@echo '  test-fast      the tests that need no ROS graph (tests/unit, not marked slow)'
 	@echo '  lint           ruff check and format check, without building ROS (scripts/lint.sh)'
@@ -37,6 +38,9 @@ demo-real: setup
 
 demo-network: setup
 	@$(ENV) python scripts/demo_network.py
+
+demo-shards: setup
+	@$(ENV) python scripts/demo_shards.py
 
 test: setup
 	@$(ENV) ruff check . && ruff format --check . && python -m pytest tests

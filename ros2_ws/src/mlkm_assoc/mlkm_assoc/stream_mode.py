@@ -215,7 +215,7 @@ class StreamMode:
             for key in ('tracks_confirmed', 'tracks_final', 'links_revised', 'pushed'):
                 values[f'stream.{key}'] = last.stats.get(key, 0)
             for key, value in sorted(last.stats.items()):
-                if key.startswith(('tracker.', 'reorder_')):
+                if key.startswith(('tracker.', 'reorder_', 'handoff_')):
                     values[f'stream.{key}'] = value
             if math.isfinite(last.committed_until):
                 values['stream.committed_until'] = f'{last.committed_until:.6f}'

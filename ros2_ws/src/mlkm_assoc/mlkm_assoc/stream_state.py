@@ -266,7 +266,7 @@ class TrackerState:
         if self._shard is None:
             return None
         data = self._shard.take(offers, upstream_until, self.run)
-        answer = Answer(None, [], 0, 0, 0.0, self.committed_until, self.newest, 0, 0)
+        answer = self._answer(_Merged(self._track_id), [], 0.0, None)
         answer.handoff = data
         return answer
 

@@ -42,15 +42,22 @@ def flag(value: str) -> bool:
     return value.lower() in ('true', '1', 'yes')
 
 
-def node(arg: dict[str, str], package: str, executable: str, params: dict[str, Any]) -> Any:
-    """``executable`` of ``package`` as a launch_ros Node named after it: its installed
-    defaults, then ``params``; output on the screen, the graph's log level."""
+def node(
+    arg: dict[str, str],
+    package: str,
+    executable: str,
+    params: dict[str, Any],
+    namespace: str = '',
+) -> Any:
+    """``executable`` of ``package`` as a launch_ros Node named after it (in ``namespace``):
+    its installed defaults, then ``params``; output on the screen, the graph's log level."""
     from launch_ros.actions import Node
 
     return Node(
         package=package,
         executable=executable,
         name=executable,
+        namespace=namespace,
         parameters=[param_file(package, executable), params],
         ros_arguments=['--log-level', arg['log_level']],
         output='screen',

@@ -11,6 +11,7 @@ committed track, followed up the continuations to the track that began upstream.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,6 +34,7 @@ class ShardedResult:
     accepted: list[int] = field(default_factory=list)
     offered: list[int] = field(default_factory=list)
     stats: list[dict] = field(default_factory=list)
+    seconds: list[float] = field(default_factory=list)  # [s] CPU in each shard's tracker
 
 
 def det_ids(layout: Layout, d: Detections) -> list[DetId]:
@@ -95,6 +97,7 @@ def associate_sharded(
     result.pushed = [0] * count
     result.accepted = [0] * count
     result.offered = [0] * count
+    result.seconds = [0.0] * count
 
     def take(k: int, update) -> None:
         rows = []
@@ -121,10 +124,16 @@ def associate_sharded(
         for j in (k - 1, k, k + 1):
             if 0 <= j < count and s in local[j]:
                 row = (float(d.stamp[i]), float(d.velocity[i]), int(lane[i]), float(length[i]))
-                take(j, trackers[j].push(i, local[j][s], *row))
+                t0 = time.process_time()
+                update = trackers[j].push(i, local[j][s], *row)
+                result.seconds[j] += time.process_time() - t0
+                take(j, update)
                 result.pushed[j] += 1
     for k in range(count):
-        take(k, trackers[k].flush())
+        t0 = time.process_time()
+        update = trackers[k].flush()
+        result.seconds[k] += time.process_time() - t0
+        take(k, update)
         desks[k].committed_until = math.inf
     for k in range(1, count):
         desks[k].take_offers((), math.inf)

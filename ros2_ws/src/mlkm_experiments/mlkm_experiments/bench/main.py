@@ -13,14 +13,14 @@ from pathlib import Path
 from mlkm_core.associators import available_methods
 from mlkm_core.cli_args import renamed_option
 
-from . import cost, grid, network, peer, real, soak, stream, sumo, sumo_families
+from . import cost, grid, network, peer, real, shards, soak, stream, sumo, sumo_families
 from .plots import plot_all, plot_stream
 from .report import write_readme
 from .targets import evaluate_targets
 
 #: Parts in the order they run: the ones that fork child processes come before the ones that
 #: start DDS participants in this process (soak).
-PARTS = ('grid', 'peer', 'cost', 'real', 'sumo', 'network', 'live', 'soak', 'stream')
+PARTS = ('grid', 'peer', 'cost', 'real', 'sumo', 'network', 'live', 'soak', 'stream', 'shards')
 
 
 def _run_live(out_dir: Path, log) -> dict:
@@ -138,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
             log, episodes=soak.QUICK_EPISODES if quick else soak.EPISODES
         ),
         'stream': lambda: stream.run_stream(log, quick, args.cache_dir),
+        'shards': lambda: shards.run_shards(log, quick, args.cache_dir),
     }
     log(f'parts: {", ".join(parts)}; methods: {", ".join(methods)}')
     failed = []

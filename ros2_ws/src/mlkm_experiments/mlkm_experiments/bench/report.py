@@ -10,6 +10,7 @@ from .grid import grid_cell
 from .network import report_lines as network_report
 from .plots import plot_sumo_curves
 from .real import report_lines as real_report
+from .shards import report_lines as shards_report
 from .soak import report_lines as soak_report
 from .stream_report import report_lines as stream_report
 from .sumo import report_lines as sumo_report
@@ -184,4 +185,5 @@ def write_readme(out_dir: Path, parts: dict[str, dict], targets: list[dict], met
     L += network_report(parts.get('network', {}))
     L += soak_report(parts.get('soak', {}))
     L += stream_report(parts.get('stream', {}))
+    L += shards_report(parts.get('shards', {}))
     (out_dir / 'README.md').write_text('\n'.join(L) + '\n')
