@@ -257,6 +257,20 @@ def test_demo_launch_scores_answers_the_ros2_cli_stops_on_ctrl_c_and_replays(
             proc.stop()
 
 
+def all_scored(proc: Proc, collector: ScoreCollector, published: list[int]):
+    """A condition: sumo_sensors (in ``proc``'s output) published its detections, their count
+    appended to ``published``, and the scores cover them all."""
+
+    def done() -> bool:
+        if not published:
+            m = re.search(r'\[sumo_sensors\]: published (\d+) detections', proc.output())
+            if m:
+                published.append(int(m.group(1)))
+        return bool(published) and sum(s.total for s in collector.scores.values()) >= published[0]
+
+    return done
+
+
 def test_stream_launch_scores_every_detection_and_stops_on_ctrl_c(
     ros2_env, ros_domain_id, tmp_path
 ) -> None:
@@ -269,17 +283,8 @@ def test_stream_launch_scores_every_detection_and_stops_on_ctrl_c(
             'duration:=60.0', 'lag:=10.0', 'window:=30.0', 'record:=false',
         )  # fmt: skip
         published: list[int] = []
-
-        def all_scored() -> bool:
-            if not published:
-                m = re.search(r'\[sumo_sensors\]: published (\d+) detections', stream.output())
-                if m:
-                    published.append(int(m.group(1)))
-            scored = sum(s.total for s in collector.scores.values())
-            return bool(published) and scored >= published[0]
-
         why = collector.spin_until(
-            all_scored,
+            all_scored(stream, collector, published),
             timeout=240.0,
             abort=lambda: stream.poll() is not None and stream.output()[-3000:],
         )
@@ -314,17 +319,8 @@ def test_shards_launch_merges_two_shards_scores_every_detection_and_stops_on_ctr
             'record:=false',
         )  # fmt: skip
         published: list[int] = []
-
-        def all_scored() -> bool:
-            if not published:
-                m = re.search(r'\[sumo_sensors\]: published (\d+) detections', shards.output())
-                if m:
-                    published.append(int(m.group(1)))
-            scored = sum(s.total for s in collector.scores.values())
-            return bool(published) and scored >= published[0]
-
         why = collector.spin_until(
-            all_scored,
+            all_scored(shards, collector, published),
             timeout=240.0,
             abort=lambda: shards.poll() is not None and shards.output()[-3000:],
         )

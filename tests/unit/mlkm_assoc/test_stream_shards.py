@@ -12,13 +12,8 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message
 
-from mlkm_assoc.stream_shard import ShardRole
-from mlkm_assoc.stream_state import (
-    TrackerSettings,
-    TrackerState,
-    encode_handoff,
-    encode_tracks,
-)
+from mlkm_assoc.stream_shard import ShardRole, encode_handoff
+from mlkm_assoc.stream_state import TrackerSettings, TrackerState, encode_tracks
 from mlkm_core.loops import even_positions, virtual_loops
 from mlkm_core.metrics import accuracy
 from mlkm_core.shards.merge import TrackMerge

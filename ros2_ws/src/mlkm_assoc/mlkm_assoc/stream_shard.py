@@ -12,6 +12,7 @@ published as one TrackHandoff.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 from mlkm_core.shards.desk import DetId, HandoffDesk
@@ -131,3 +132,12 @@ class ShardPublisher:
 
 def _ns(seconds: float) -> int:
     return max(0, round(seconds * NS_PER_S)) if math.isfinite(seconds) else 0
+
+
+def encode_handoff(**kwargs) -> bytes:
+    """A TrackHandoff, serialized (runs in the tracker process of a shard)."""
+    from rclpy.serialization import serialize_message
+
+    from mlkm_ros.handoff_conversions import handoff_to_msg
+
+    return serialize_message(handoff_to_msg(stamp_ns=time.time_ns(), **kwargs))

@@ -24,9 +24,8 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-import numpy as np
-
 from mlkm_assoc.reorder import ReorderBuffer
+from mlkm_assoc.stream_merged import MergedUpdate
 from mlkm_assoc.stream_shard import ShardPublisher, ShardRole
 from mlkm_core.types import Layout
 
@@ -200,7 +199,7 @@ class TrackerState:
                 0,
                 error='detections before the layout reached the tracker process',
             )
-        merged = _Merged(self._track_id)
+        merged = MergedUpdate(self._track_id)
         received = []
         t0 = time.perf_counter()
         error = None
@@ -236,7 +235,7 @@ class TrackerState:
         if not self.solving:
             return None
         t0 = time.perf_counter()
-        merged = _Merged(self._track_id)
+        merged = MergedUpdate(self._track_id)
         error = None
         try:
             merged.add(self._tracker.poll())
@@ -248,7 +247,7 @@ class TrackerState:
 
     def flush(self, now: float) -> Answer:
         t0 = time.perf_counter()
-        merged = _Merged(self._track_id)
+        merged = MergedUpdate(self._track_id)
         error = None
         if self._tracker is not None:
             try:
@@ -266,7 +265,7 @@ class TrackerState:
         if self._shard is None:
             return None
         data = self._shard.take(offers, upstream_until, self.run)
-        answer = self._answer(_Merged(self._track_id), [], 0.0, None)
+        answer = self._answer(MergedUpdate(self._track_id), [], 0.0, None)
         answer.handoff = data
         return answer
 
@@ -288,7 +287,7 @@ class TrackerState:
         return tuple(row)
 
     def _answer(
-        self, merged: _Merged, received, solve_time: float, error, flushed: bool = False
+        self, merged: MergedUpdate, received, solve_time: float, error, flushed: bool = False
     ) -> Answer:
         tracks = []
         missing = 0
@@ -380,7 +379,7 @@ class TrackerState:
             self._confirmed_ids.discard(track_id)
             self.counts['tracks_final'] += 1
 
-    def _forget(self, merged: _Merged) -> None:
+    def _forget(self, merged: MergedUpdate) -> None:
         """Drop the data of detections that can never be published again."""
         for track_id, (status, keys) in merged.tracks.items():
             if status == FINAL:
@@ -410,33 +409,6 @@ class TrackerState:
         self._published.pop(key, None)
 
 
-class _Merged:
-    """The updates of one batch folded into one: the latest state of each changed track,
-    under its published id (the run's first id + the core's id)."""
-
-    def __init__(self, track_id) -> None:
-        self._track_id = track_id  # the tracker's track number -> its published id
-        self.tracks: dict[int, tuple[int, np.ndarray]] = {}
-        self.in_tracks: set[int] = set()
-        self.unassigned: dict[int, None] = {}
-        self.committed: list[tuple[int, int]] = []
-        self.committed_until = -math.inf
-
-    def add(self, update) -> None:
-        for t in update.tracks:
-            keys = np.asarray(t.keys, np.int64)
-            self.tracks[self._track_id(int(t.track_id))] = (int(t.status), keys)
-            self.in_tracks.update(keys.tolist())
-        for k in np.asarray(update.unassigned, np.int64).tolist():
-            self.unassigned[k] = None
-            self.in_tracks.discard(k)
-        rows = np.asarray(update.committed, np.int64).reshape(-1, 2)
-        self.committed.extend(
-            (int(a), self._track_id(int(b)) if b >= 0 else -1) for a, b in rows.tolist()
-        )
-        self.committed_until = max(self.committed_until, float(update.committed_until))
-
-
 def _to_ns(seconds: float) -> int:
     return int(round(seconds * NS_PER_S)) if math.isfinite(seconds) else 0
 
@@ -449,12 +421,3 @@ def encode_tracks(**kwargs) -> bytes:
 
     msg = stream_tracks_to_msg(stamp_ns=time.time_ns(), **kwargs)
     return serialize_message(msg)
-
-
-def encode_handoff(**kwargs) -> bytes:
-    """A TrackHandoff, serialized (runs in the tracker process of a shard)."""
-    from rclpy.serialization import serialize_message
-
-    from mlkm_ros.handoff_conversions import handoff_to_msg
-
-    return serialize_message(handoff_to_msg(stamp_ns=time.time_ns(), **kwargs))

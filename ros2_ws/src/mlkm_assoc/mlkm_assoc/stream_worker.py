@@ -34,6 +34,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from mlkm_assoc.stream_shard import encode_handoff
 from mlkm_assoc.stream_solver import SolverClient, SolverProcess
 from mlkm_assoc.stream_state import (
     NS_PER_S,
@@ -41,7 +42,6 @@ from mlkm_assoc.stream_state import (
     Item,
     TrackerSettings,
     TrackerState,
-    encode_handoff,
     encode_tracks,
 )
 from mlkm_core.types import Layout
