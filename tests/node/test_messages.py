@@ -27,6 +27,7 @@ MESSAGES = (
     'Track',
     'TrackArray',
     'AssociationScore',
+    'TrackHandoff',
 )
 U32_MAX = 2**32 - 1
 MSG_DIR = Path(__file__).resolve().parents[2] / 'ros2_ws' / 'src' / 'road_sensor_msgs' / 'msg'
@@ -159,6 +160,19 @@ def filled(name: str):
             links_published=800,
             links_revised=100,
             cumulative_revision_rate=0.0625,
+        )
+    if name == 'TrackHandoff':
+        return cls(
+            header=header(),
+            shard=1,
+            shard_count=4,
+            run=1_764_000_000_001_024,
+            offers=[track(1_764_000_000_001_025)],
+            continued_ids=[1_764_000_000_000_000],
+            continuing_ids=[1_764_000_000_001_025],
+            committed_until=Time(sec=100, nanosec=5),
+            settled_until=Time(sec=98),
+            newest=Time(sec=130, nanosec=250),
         )
     raise KeyError(name)
 
