@@ -5,7 +5,6 @@ merge of ``track_merge`` on top. Real NGSIM traffic through 20 virtual loops."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -29,10 +28,6 @@ pytestmark = pytest.mark.slow
 
 DATA = Path(__file__).resolve().parents[3] / 'data' / 'ngsim_i80' / 'i80_trajectories_a.csv.gz'
 SHARDS, LAG, HORIZON = 3, 30.0, 60.0
-
-
-def _seconds(value: float) -> float:
-    return value if value > 0 else -math.inf
 
 
 class Road:
@@ -69,7 +64,7 @@ class Road:
             self.handoffs[k].append(h)
             outs.append(
                 self.merge.add_handoff(k, h.run, h.offered_stamps(), h.continuations,
-                                       _seconds(h.settled_until), _seconds(h.newest))
+                                       h.settled_until, h.newest)
             )  # fmt: skip
             if k + 1 < SHARDS:
                 self.give(k + 1, h)
@@ -80,7 +75,7 @@ class Road:
 
     def give(self, k: int, h) -> None:
         offers = h.offered_detections()
-        self.route(k, self.states[k].take_handoff(offers, _seconds(h.committed_until)))
+        self.route(k, self.states[k].take_handoff(offers, h.committed_until))
 
     def push(self, d, i: int) -> None:
         s = int(d.sensor_index[i])

@@ -10,7 +10,6 @@ topics are when the shard runs in a namespace of its own.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 from rclpy.node import Node
@@ -133,11 +132,10 @@ class ShardLink:
             return  # a message of the upstream shard's run before its restart
         self._upstream_run = h.run
         self.received += 1
-        until = h.committed_until if h.committed_until > 0 else -math.inf
         if self._take is None:
-            self._early.append((h.offered_detections(), until))
+            self._early.append((h.offered_detections(), h.committed_until))
         else:
-            self._take(h.offered_detections(), until)
+            self._take(h.offered_detections(), h.committed_until)
 
     def diagnostics(self, values: dict) -> None:
         values['shard'] = f'{self.index}/{self.count}'

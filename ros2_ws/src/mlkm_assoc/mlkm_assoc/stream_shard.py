@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass
 
 from mlkm_core.shards.desk import DetId, HandoffDesk
-from mlkm_core.shards.regions import MAX_SHARDS, ShardRegion
+from mlkm_core.shards.regions import MAX_SHARDS, ShardRegion, shard_track_id
 from mlkm_core.types import Layout
 
 NS_PER_S = 1_000_000_000
@@ -59,7 +59,7 @@ class ShardRole:
         return -(-at_least // MAX_SHARDS) * MAX_SHARDS
 
     def track_id(self, run: int, n: int) -> int:
-        return run + n * MAX_SHARDS + self.index
+        return shard_track_id(run, n, self.index)
 
 
 def det_id(row) -> DetId:

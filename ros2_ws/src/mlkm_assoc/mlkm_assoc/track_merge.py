@@ -124,17 +124,14 @@ class TrackMergeNode(Node):
             return
         self._counts['handoffs'] += 1
 
-        def seconds(value: float) -> float:  # 0: nothing yet
-            return value if value > 0 else -math.inf
-
         self._emit(
             self._merge.add_handoff(
                 h.shard,
                 h.run,
                 h.offered_stamps(),
                 h.continuations,
-                seconds(h.settled_until),
-                seconds(h.newest),
+                h.settled_until,
+                h.newest,
             )
         )
 

@@ -18,7 +18,7 @@ Row = tuple[int, int, float, float, int, float]
 @dataclass(frozen=True)
 class Handoff:
     """A decoded TrackHandoff: offers as (track id, rows), continuations as (upstream id,
-    id), times in seconds."""
+    id), times in seconds (-inf for a zero time: nothing yet)."""
 
     shard: int
     shard_count: int
@@ -84,10 +84,16 @@ def handoff_from_msg(msg: TrackHandoff) -> Handoff:
         int(msg.run),
         offers,
         [(int(a), int(b)) for a, b in zip(msg.continued_ids, msg.continuing_ids, strict=True)],
-        time_to_ns(msg.committed_until) / NS_PER_S,
-        time_to_ns(msg.settled_until) / NS_PER_S,
-        time_to_ns(msg.newest) / NS_PER_S,
+        _seconds(msg.committed_until),
+        _seconds(msg.settled_until),
+        _seconds(msg.newest),
     )
+
+
+def _seconds(t) -> float:
+    """A hand-off time in seconds; -inf for zero (the shard has nothing there yet)."""
+    ns = time_to_ns(t)
+    return ns / NS_PER_S if ns > 0 else -math.inf
 
 
 def stream_rows_from_msg(
