@@ -26,7 +26,9 @@ Fixtures
                         The processes die with this pytest run however it ends (SIGTERM,
                         SIGHUP, Ctrl-C, SIGKILL): see ``_end_children_with_the_run``.
 ``rclpy_context``    -> a private, initialised ``rclpy.context.Context`` on ``ros_domain_id``
-                        (loopback only, no rclpy signal handlers), shut down at teardown. Pass
+                        (loopback only, no rclpy signal handlers), shut down at teardown
+                        after every node made on it is destroyed (so none of its participants
+                        outlives the test and reaches a later one in the same domain). Pass
                         it to ``Node(..., context=ctx)`` and ``SingleThreadedExecutor(
                         context=ctx)``.
 ``spin_until``       -> function ``spin_until(executor, predicate, timeout=10.0) -> bool``:
@@ -214,10 +216,39 @@ def rclpy_context(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch):
     rclpy.init(
         context=ctx, domain_id=ros_domain_id, signal_handler_options=SignalHandlerOptions.NO
     )
+    nodes = _nodes_made_in(ctx, monkeypatch)
     try:
         yield ctx
     finally:
+        # A shut-down context's DDS participant lives on while any of its nodes is referenced
+        # (a thread, a closure) and keeps serving its latched messages; a later test that draws
+        # the same domain id would receive them. Destroying the nodes ends the participant.
+        for ref in nodes:
+            node = ref()
+            if node is not None:
+                try:
+                    node.destroy_node()
+                except Exception:  # noqa: BLE001 - already destroyed, or its context is gone
+                    pass
         rclpy.try_shutdown(context=ctx)
+
+
+def _nodes_made_in(ctx, monkeypatch: pytest.MonkeyPatch) -> list:
+    """Weak references to every rclpy Node created on ``ctx`` from now on."""
+    import weakref
+
+    from rclpy.node import Node
+
+    made: list = []
+    original = Node.__init__
+
+    def init(self, *args, **kwargs) -> None:
+        original(self, *args, **kwargs)
+        if self.context is ctx:
+            made.append(weakref.ref(self))
+
+    monkeypatch.setattr(Node, '__init__', init)
+    return made
 
 
 def _spin_until(executor, predicate: Callable[[], bool], timeout: float = 10.0) -> bool:

@@ -12,6 +12,7 @@ mlkm_experiments import it from here). Importing it loads no rclpy: only
 from __future__ import annotations
 
 import fcntl
+import itertools
 import os
 import random
 import signal
@@ -24,6 +25,10 @@ from pathlib import Path
 
 #: Shared with tests/conftest.py: a domain id held by a lock file is in use on this machine.
 LOCK_DIR = Path(os.environ.get('MLKM_DOMAIN_LOCK_DIR', '/tmp/mlkm-ros-domain-locks'))
+
+#: The order in which this process released each domain id it held (a larger one later).
+_RELEASED: dict[int, int] = {}
+_RELEASES = itertools.count(1)
 
 #: Every Proc started by this process and not yet stopped, by process group id.
 _RUNNING: dict[int, Proc] = {}
@@ -51,6 +56,10 @@ def reserve_domain() -> Iterator[int]:
     LOCK_DIR.mkdir(parents=True, exist_ok=True)
     ids = list(range(1, 101))
     random.shuffle(ids)
+    # Ids this process released longest ago first: whatever a finished holder may have left
+    # behind in its domain (a participant that dies slowly) then meets no new holder for a
+    # long time.
+    ids.sort(key=lambda i: _RELEASED.get(i, 0))
     for domain_id in ids:
         fd = os.open(LOCK_DIR / f'{domain_id}.lock', os.O_CREAT | os.O_RDWR, 0o666)
         try:
@@ -63,6 +72,7 @@ def reserve_domain() -> Iterator[int]:
         finally:
             fcntl.flock(fd, fcntl.LOCK_UN)
             os.close(fd)
+            _RELEASED[domain_id] = next(_RELEASES)
         return
     raise RuntimeError('every ROS domain id 1..100 is in use on this machine')
 
