@@ -144,11 +144,12 @@ def test_the_merge_joins_pieces_under_the_upstream_id_in_either_order(handoff_fi
 def test_an_offer_nobody_takes_ends_the_track_after_the_horizon() -> None:
     m = TrackMerge(2, horizon=10.0)
     m.add_tracks(1, 1, [], [], 0.0)
-    m.add_tracks(0, 1, [(0, FINAL, [row(0, 1, 0), row(1, 2, 10)])], [], 5.0)
+    out = m.add_tracks(0, 1, [(0, FINAL, [row(0, 1, 0), row(1, 2, 10)])], [], 5.0)
+    assert [(t, s) for t, s, _ in out.tracks] == [(0, CONFIRMED)]  # its shard not settled
     out = m.add_handoff(0, 1, [(0, 2.0)], [], 5.0, 20.0)
-    assert out.tracks[0][1] == CONFIRMED  # shard 1 may still continue it
+    assert not out.tracks  # still CONFIRMED (shard 1 may continue it): not published again
     out = m.add_handoff(1, 1, [], [], 11.0, 30.0)
-    assert out.tracks[0][1] == CONFIRMED
+    assert not out.tracks
     out = m.add_handoff(1, 1, [], [], 12.5, 30.0)
     assert [(t, s) for t, s, _ in out.tracks] == [(0, FINAL)]
     m.add_tracks(1, 1, [], [], 12.0)

@@ -20,6 +20,12 @@ from mlkm_core.shards.regions import MAX_SHARDS, ShardRegion, shard_track_id
 from mlkm_core.types import Layout
 
 NS_PER_S = 1_000_000_000
+#: A TrackHandoff with no offer and no continuation is published only when the shard's commit
+#: or settled time moved this far since the last one it published, or when it caught up with
+#: (or fell behind) the newest stamp it took [s]. Every batch commits a little, and a message
+#: per batch (and per upstream message received) flooded the shards and the merge that read
+#: them; the consumers' decisions wait at most this much longer.
+TIMES_STEP = 1.0
 
 
 @dataclass(frozen=True)
@@ -79,6 +85,7 @@ class ShardPublisher:
         self._encode = encode_handoff
         self._shown: set[int] = set()  # tracks published with own detections, not FINAL
         self._newest = -math.inf  # [s] newest stamp the tracker took
+        self._sent: tuple[float, float, bool] | None = None  # times of the last message
         self.counts = {'handoff_offers': 0, 'handoff_accepts': 0, 'handoff_received': 0}
 
     def own_rows(self, track_id: int, status: int, rows: list[tuple]) -> list[tuple] | None:
@@ -98,9 +105,10 @@ class ShardPublisher:
 
     def commit(
         self, committed: list[tuple[int, tuple]], until: float, newest: float, run: int
-    ) -> bytes:
+    ) -> bytes | None:
         """Committed (track id or -1, row) of one answer, the commit time and the newest
-        stamp taken [s]; the TrackHandoff to publish."""
+        stamp taken [s]; the TrackHandoff to publish, None when it would say nothing new
+        (``TIMES_STEP``)."""
         self._newest = max(self._newest, newest)
         out = self.desk.commit([(t, det_id(r)) for t, r in committed], until)
         rows = {det_id(r): r for _, r in committed}
@@ -110,12 +118,21 @@ class ShardPublisher:
         return self._message(run, offers, out.accepts)
 
     def take(self, offers: list[tuple[int, DetId]], upstream_until: float, run: int):
-        """Offers of the upstream shard; the TrackHandoff of the continuations decided."""
+        """Offers of the upstream shard; the TrackHandoff of the continuations decided (None
+        when it would say nothing new)."""
         self.counts['handoff_received'] += len(offers)
         self.desk.take_offers(offers, upstream_until)
         return self._message(run, {}, self.desk.decide())
 
-    def _message(self, run: int, offers: dict, accepts: list[tuple[int, int]]) -> bytes:
+    def _message(self, run: int, offers: dict, accepts: list[tuple[int, int]]) -> bytes | None:
+        times = (
+            self.desk.committed_until,
+            self.desk.settled_until,
+            self.desk.settled_until >= self._newest,
+        )
+        if not offers and not accepts and not self._news(times):
+            return None
+        self._sent = times
         self.counts['handoff_offers'] += sum(len(v) for v in offers.values())
         self.counts['handoff_accepts'] += len(accepts)
         return self._encode(
@@ -127,6 +144,15 @@ class ShardPublisher:
             committed_until_ns=_ns(self.desk.committed_until),
             settled_until_ns=_ns(self.desk.settled_until),
             newest_ns=_ns(self._newest),
+        )
+
+    def _news(self, times: tuple[float, float, bool]) -> bool:
+        """The times moved enough since the last message to be worth one."""
+        if self._sent is None or times[2] != self._sent[2]:
+            return True
+        return any(
+            (now - then >= TIMES_STEP) if math.isfinite(then) else now != then
+            for now, then in zip(times[:2], self._sent[:2], strict=True)
         )
 
 

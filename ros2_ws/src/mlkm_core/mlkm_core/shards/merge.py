@@ -70,6 +70,7 @@ class TrackMerge:
         self._child: dict[int, int] = {}
         self._offered: dict[int, float] = {}  # piece -> its latest offered stamp [s]
         self._shown: set[int] = set()  # ids published with detections, not yet FINAL
+        self._status_out: dict[int, int] = {}  # the status each id was last published with
         self._runs: list[int | None] = [None] * count
         self._until = [-math.inf] * count  # tracks' committed_until per shard [s]
         self._settled = [-math.inf] * count  # hand-off's settled_until per shard [s]
@@ -121,12 +122,12 @@ class TrackMerge:
         self._settled[shard] = max(self._settled[shard], settled_until)
         self._newest[shard] = max(self._newest[shard], newest)
         # offered tracks waiting on this shard, and this shard's tracks waiting for it to
-        # settle, may be final now
-        touched.update(t for t in self._offered if self._shard(t) + 1 == shard)
-        touched.update(
+        # settle, may be final now: published again only when their status changed
+        recheck = {t for t in self._offered if self._shard(t) + 1 == shard}
+        recheck.update(
             t for t, p in self._pieces.items() if p.shard == shard and p.status == FINAL
         )
-        out = self._out(touched, [])
+        out = self._out(touched, [], recheck)
         for here in retire:
             self._shown.discard(here)
             self.retired += 1
@@ -185,16 +186,24 @@ class TrackMerge:
             return CONFIRMED
         return CONFIRMED if any(p.status >= CONFIRMED for p in pieces) else TENTATIVE
 
-    def _out(self, touched: set[int], unassigned: list[tuple]) -> MergeOut:
+    def _out(
+        self, touched: set[int], unassigned: list[tuple], recheck: set[int] = frozenset()
+    ) -> MergeOut:
+        """The tracks of the ``touched`` pieces (changed), and of the ``recheck`` ones whose
+        status changed."""
         out = MergeOut(unassigned=unassigned, committed_until=self.committed_until)
-        for root in sorted({self.root(t) for t in touched}):
+        changed = {self.root(t) for t in touched}
+        for root in sorted(changed | {self.root(t) for t in recheck}):
             ids = self._chain(root)
             pieces = [self._pieces.get(i) for i in ids]
             if all(p is None for p in pieces):
                 continue  # only hand-off news of a piece not published yet
+            status = self._status(pieces, ids[-1])
+            if root not in changed and self._status_out.get(root) == status:
+                continue
+            self._status_out[root] = status
             rows = sorted((r for p in pieces if p is not None for r in p.rows),
                           key=lambda r: (r[3], r[1]))  # fmt: skip
-            status = self._status(pieces, ids[-1])
             out.tracks.append((root, status, rows))
             if status == FINAL:
                 self._forget(ids)
@@ -207,6 +216,7 @@ class TrackMerge:
             self._pieces.pop(i, None)
             self._offered.pop(i, None)
             self._shown.discard(i)
+            self._status_out.pop(i, None)
             up = self._parent.pop(i, None)
             if up is not None:
                 self._child.pop(up, None)
