@@ -43,6 +43,12 @@ SCENARIOS: dict[str, Scenario] = {
             3000.0,
         ),
         Scenario(
+            'long_highway',
+            'the highway over 20 km (about 11 minutes from end to end), 3,000 vehicles/h: '
+            'the long road that association shards split',
+            3000.0,
+        ),
+        Scenario(
             'congested',
             'the highway at 2,400 vehicles/h into road works (from 3.5 km one lane at 60 km/h '
             'for 500 m, about 2,000 vehicles/h): a queue with stop-and-go waves grows upstream',

@@ -23,7 +23,11 @@ from road_sensors.launch_graph import (
 
 ARGUMENTS = (
     ('shards', '4', 'association nodes the road is split over [-]'),
-    ('scenario', 'highway', 'SUMO scenario: single_lane, highway, congested or ramps [-]'),
+    (
+        'scenario',
+        'highway',
+        'SUMO scenario: single_lane, highway, long_highway, congested or ramps [-]',
+    ),
     ('duration', '300.0', 'simulated time the source publishes [s]'),
     ('stations', '40', 'sensor stations along the road [-]'),
     ('seed', '1', 'seed of the source [-]'),

@@ -25,7 +25,11 @@ from road_sensors.launch_graph import (
 
 ARGUMENTS = (
     ('source', 'sumo', 'sumo (sumo_sensors) or sim (sensor_sim continuous) [-]'),
-    ('scenario', 'ramps', 'SUMO scenario: single_lane, highway, congested or ramps [-]'),
+    (
+        'scenario',
+        'ramps',
+        'SUMO scenario: single_lane, highway, long_highway, congested or ramps [-]',
+    ),
     ('duration', '120.0', 'simulated time the source publishes [s]'),
     ('stations', '10', 'sensor stations along the road [-]'),
     ('stations_at', '', "SUMO: station positions instead, e.g. '300,700,1100' [m]"),
