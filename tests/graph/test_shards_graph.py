@@ -168,10 +168,12 @@ def test_three_shards_equal_the_offline_shards_and_one_node(
         ),
         180.0,
     )
-    missing = sum(k not in listener.labels for k in keys)
+    missing = [k for k in keys if k not in listener.labels]
     assert everything, (
-        f'{missing} detections without a track, committed until {listener.committed_ns} ns '
-        f'of {max(k[2] for k in keys)}\n' + ''.join(p.output() for p in procs)
+        f'{len(missing)} detections without a track (sensor id, lane, stamp ns: '
+        f'{missing[:20]}), committed until {listener.committed_ns} ns of '
+        f'{max(k[2] for k in keys)}; diagnostics {listener.diag}\n'
+        + ''.join(p.output() for p in procs)
     )
     source.proc.send_signal(signal.SIGINT)
     assert source.proc.wait(30) == 0, source.output()
