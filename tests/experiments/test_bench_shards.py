@@ -27,6 +27,10 @@ def test_shards_part_compares_every_count_with_one_tracker() -> None:
         assert len(r['continued']) == r['shards'] and r['continued'][0] == 0
         assert min(r['continued'][1:]) > 90  # about every vehicle crosses every border
         assert r['links_differing_at_a_border'] <= r['links_differing']
+        # every border is crossed by about every vehicle; the hand-off carries those links
+        # as one tracker makes them
+        assert r['border_links'] > 90 * (r['shards'] - 1)
+        assert r['border_right'] == r['border_right_one'] >= 0.99 * r['border_links']
     assert len(lines) == len(shards.COUNTS)
     table = shards.report_lines({'datasets': [out], 'method': 'multiframe', 'lag': 30.0})
     assert table[0] == '## Shards (`--only shards`)'
