@@ -48,8 +48,9 @@ def test_the_handoff_clock_times_each_offer_to_its_continuation(monkeypatch) -> 
     clock(msg(99.99, offers=[11]))  # arrives at 100.0
     clock(msg(100.98, offers=[11, 12]))  # a later offer of 11 does not restart its clock
     clock(msg(104.4, continued=[11]))  # 11 taken at 104.5
-    clock(msg(105.9, continued=[99]))  # never offered here: no delay
-    assert clock.delays == [4.5]
+    clock.source_ended = 105.0
+    clock(msg(105.9, continued=[12]))  # at the flush, after the source: counted, not timed
+    assert clock.delays == [4.5] and clock.continued == 2
     assert clock.transits == pytest.approx([0.01, 0.02, 0.1, 0.1])
 
 
@@ -107,13 +108,16 @@ def test_report_lines_name_the_highest_rate_and_its_figures() -> None:
 
 @pytest.mark.slow
 @pytest.mark.ros
-def test_two_shards_sustain_a_gentle_rate_and_hand_tracks_over(tmp_path, ros_domain_id) -> None:
-    data = {'scenario': 'highway', 'stations': 10, 'duration': 120.0, 'seed': 3}
+def test_two_shards_paced_over_dds_measure_and_hand_tracks_over(tmp_path, ros_domain_id) -> None:
+    data = {'scenario': 'highway', 'stations': 20, 'duration': 300.0, 'seed': 3}
     files = paced.write_log(tmp_path, tmp_path / 'sumo_cache', data)
-    r = paced.run_rate(ros_domain_id, tmp_path / 'run', files, 2, 50.0)
-    assert r['sustained'], r
+    r = paced.run_rate(ros_domain_id, tmp_path / 'run', files, 2, 100.0)
+    # the measurements are real ones (whether 100 det/s is sustained depends on the load)
+    assert r['sustained'] == paced.sustained(r['nodes'], 100.0)
     assert sum(n['received'] for n in r['nodes'].values()) > files['detections']  # margins
-    assert all(n['cores'] > 0 and n['latency_p95'] <= 0.05 for n in r['nodes'].values())
+    for n in r['nodes'].values():
+        assert n['cores'] > 0 and 0 < n['latency_p50'] <= n['latency_p95']
+        assert 0 < n['road_rate'] <= 1.5 * 100.0
     assert r['merge_cores'] > 0
     # the vehicles seen on both sides of the border are continued across it, each once
     d = generate(
@@ -122,5 +126,7 @@ def test_two_shards_sustain_a_gentle_rate_and_hand_tracks_over(tmp_path, ros_dom
     ).detections  # fmt: skip
     first = split_road(data['stations'], 2)[1].own[0]
     crossing = set(d.target[d.sensor_index == first - 1]) & set(d.target[d.sensor_index == first])
-    assert 0.9 * len(crossing) <= r['continued'] <= len(crossing)
-    assert r['handoff_delay']['p50'] > 0 and r['handoff_transit']['p95'] < 1.0
+    assert len(crossing) > 100
+    assert 0.95 * len(crossing) <= r['continued'] <= len(crossing)
+    assert 0 < r['handoff_delay']['p50'] <= r['handoff_delay']['p95']
+    assert 0 < r['handoff_transit']['p50'] < 1.0

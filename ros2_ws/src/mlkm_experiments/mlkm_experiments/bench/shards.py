@@ -170,8 +170,12 @@ def report_lines(shards: dict) -> list[str]:
                 f'| {ds["name"]} | {r["shards"]} | {100 * r["accuracy"]:.2f} % | '
                 f'{r["difference_points"]:+.2f} | {r["links_differing"]} '
                 f'({r["links_differing_at_a_border"]}) | '
-                f'{r["border_right"]} of {r["border_links"]} ({r["border_right_one"]}) | '
-                f'{", ".join(str(c) for c in r["continued"][1:]) or "-"} | '
+                + (
+                    f'{r["border_right"]} of {r["border_links"]} ({r["border_right_one"]}) | '
+                    if 'border_links' in r
+                    else '- | '
+                )
+                + f'{", ".join(str(c) for c in r["continued"][1:]) or "-"} | '
                 f'{max(r["cpu_s"]):.1f} | {r["speedup"]:.2f} |'
             )
     return [*lines, '', *paced_report(shards.get('paced', {}))]

@@ -20,10 +20,12 @@ reorder tolerance: a backlog that grows with the run exceeds it).
 **CPU**: utime + stime of each node and its tracker process (``/proc``), from the first
 detection to the end of the source, over that wall time: the cores the shard used.
 **Hand-off latency**: a subscriber on /mlkm/handoff takes the arrival of the first offer of
-each upstream track and of the continuation that takes it; the difference, in wall seconds,
-is how long the track's identity stays open downstream (the vehicle's travel through the
-margin and the commit lag, at the paced rate, plus the shards' processing). Its transit is
-the message's arrival minus its ``header.stamp`` (the shard's clock, the same host here).
+each upstream track and of the continuation that takes it, while the source runs; the
+difference, in wall seconds, is how long the track's identity stays open downstream (the
+vehicle's travel through the margin and the commit lag, at the paced rate, plus the shards'
+processing). Its transit is the message's arrival minus its ``header.stamp`` (the shard's
+clock, the same host here). The run ends once every node flushed its quiet road, so that
+every continuation is counted.
 """
 
 from __future__ import annotations
@@ -127,6 +129,10 @@ class HandoffClock:
         self.offered: dict[int, float] = {}  # upstream track -> first offer's arrival [s]
         self.delays: list[float] = []  # [s] offer -> continuation
         self.transits: list[float] = []  # [s] header.stamp -> arrival
+        # continuations after the source ended (decided at the quiet road's flush, a lag of
+        # wall time later): counted, their delay not timed
+        self.source_ended = math.inf  # [s] time.time()
+        self.late = 0
 
     def __call__(self, msg) -> None:
         now = time.time()
@@ -134,8 +140,14 @@ class HandoffClock:
         for track in msg.offers:
             self.offered.setdefault(int(track.track_id), now)
         for up in msg.continued_ids:
-            if int(up) in self.offered:
+            if now > self.source_ended:
+                self.late += 1
+            elif int(up) in self.offered:
                 self.delays.append(now - self.offered[int(up)])
+
+    @property
+    def continued(self) -> int:
+        return len(self.delays) + self.late
 
 
 def run_rate(domain_id: int, log_dir: Path, files: dict, count: int, rate: float) -> dict:
@@ -188,20 +200,23 @@ def run_rate(domain_id: int, log_dir: Path, files: dict, count: int, rate: float
             if why or src.poll() != 0:
                 raise RuntimeError(f'log_source did not finish: {why or graph.failed()}')
             state['t1'] = time.monotonic()
+            clock.source_ended = time.time()
             cpu1 = {k: tree_cpu(p.pid) for k, p in procs.items()}
             at_end = {k: _num(v, 'stream.commit_lag') for k, v in values.items()}
 
-            def drained() -> bool:
+            def flushed() -> bool:
+                # every detection through the tracker and the quiet road flushed (``lag`` of
+                # wall time after the last one): every continuation is decided and counted
                 take()
                 return len(values) == count and all(
                     int(v.get('stream.pushed') or 0) >= int(v.get('accepted', 0))
-                    and float(v.get('stream.idle') or 0.0) > 1.0
+                    and v.get('stream.working_set') == '0'
                     for v in values.values()
                 )
 
-            why = collector.spin_until(drained, timeout=RUN_TIMEOUT, abort=graph.failed)
+            why = collector.spin_until(flushed, timeout=RUN_TIMEOUT, abort=graph.failed)
             if why:
-                raise RuntimeError(f'the nodes did not drain: {why}; logs in {log_dir}')
+                raise RuntimeError(f'the nodes did not flush: {why}; logs in {log_dir}')
     finally:
         collector.close()
     wall = (state['t1'] or 0.0) - (state['t0'] or 0.0)
@@ -235,7 +250,7 @@ def run_rate(domain_id: int, log_dir: Path, files: dict, count: int, rate: float
         'merge_cores': merge_cpu / wall if count > 1 and wall > 0 else None,
         'handoff_delay': _quantiles(clock.delays),
         'handoff_transit': _quantiles(clock.transits),
-        'continued': len(clock.delays),
+        'continued': clock.continued,
         'sustained': sustained(nodes, rate),
     }
 
