@@ -92,7 +92,7 @@ def test_param_file_matches_declared_defaults() -> None:
     for spec in SPECS:
         assert '[' in spec.description, f'{spec.name}: description without a unit'
     choices = {s.name: s.descriptor().additional_constraints for s in SPECS}
-    assert choices['scenario'] == 'one of: single_lane, highway, congested, ramps'
+    assert choices['scenario'] == 'one of: single_lane, highway, long_highway, congested, ramps'
     assert choices['mode'] == 'one of: episodes, continuous'
 
 
