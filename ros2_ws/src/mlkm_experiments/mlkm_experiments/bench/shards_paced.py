@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from .common import Log
-from .stream import LATENCY_P95_MAX, _num, _sample, ingest_rate
+from .stream import LATENCY_P95_MAX, _num, _sample, descendants, ingest_rate
 
 CONFIGS = (1, 2, 4)
 #: Paced rates tried in turn [detections/s].
@@ -78,19 +78,13 @@ def write_log(out_dir: Path, cache_dir: Path | None, data: dict = DATA) -> dict:
 def tree_cpu(pid: int) -> float:
     """utime + stime [s] of process ``pid`` and its descendants alive now."""
     tick = os.sysconf('SC_CLK_TCK')
-    total, todo = 0.0, [pid]
-    while todo:
-        p = todo.pop()
+    total = 0.0
+    for p in (pid, *descendants(pid)):
         try:
             fields = Path(f'/proc/{p}/stat').read_text().rsplit(')', 1)[1].split()
             total += (int(fields[11]) + int(fields[12])) / tick
         except (OSError, IndexError, ValueError):
             continue
-        for task in Path(f'/proc/{p}/task').glob('*/children'):
-            try:
-                todo += [int(x) for x in task.read_text().split()]
-            except (OSError, ValueError):
-                continue
     return total
 
 

@@ -97,8 +97,8 @@ def _params(p: dict) -> list[str]:
     return out
 
 
-def tree_rss(pid: int) -> dict[str, int | None]:
-    """VmRSS of process ``pid`` and the sum over its descendants (the tracker process)."""
+def descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` alive now (Linux /proc)."""
     kids, todo = [], [pid]
     while todo:
         p = todo.pop()
@@ -109,7 +109,12 @@ def tree_rss(pid: int) -> dict[str, int | None]:
                 continue
             kids += found
             todo += found
-    child = [r for r in (vm_rss(k) for k in kids) if r is not None]
+    return kids
+
+
+def tree_rss(pid: int) -> dict[str, int | None]:
+    """VmRSS of process ``pid`` and the sum over its descendants (the tracker process)."""
+    child = [r for r in (vm_rss(k) for k in descendants(pid)) if r is not None]
     return {'node': vm_rss(pid), 'tracker': sum(child) if child else None}
 
 
