@@ -1,5 +1,6 @@
-"""Count curves: the extra time of a gap whose queue builds up, from the stations' counts
-(hand-made single-lane traffic where a constant extra time cannot link it)."""
+"""Count curves: the extra time of a gap whose queue builds up, or that a first pass linked whole
+vehicles off, from the stations' counts (hand-made single-lane traffic where the speeds alone
+cannot link it)."""
 
 from dataclasses import replace
 
@@ -12,7 +13,9 @@ from mlkm_core.associators.count_curves import (
     count_curve_profiles,
     count_pairs,
     running_median,
+    shifted_gaps,
 )
+from mlkm_core.associators.linking import link, relabel
 from mlkm_core.metrics import accuracy
 from mlkm_core.model.gap_delays import GapDelays, GapProfile
 from mlkm_core.model.motion import MotionParams
@@ -29,19 +32,22 @@ def holdup(t: np.ndarray) -> np.ndarray:
     return HOLDUP * np.interp(t, [50.0, 200.0, 300.0], [0.0, 1.0, 0.0])
 
 
-def growing_queue(seed: int, n: int = 120) -> tuple[Layout, Detections]:
-    """One lane (no overtaking), ``n`` vehicles 2-4 s apart at 25 m/s, give or take 0.3 m/s at
-    every station; between stations 1 and 2 a queue whose holdup rises from 0 to 40 s and
-    falls back (the speeds at the stations do not show it)."""
+def growing_queue(
+    seed: int, n: int = 120, headways=(2.0, 4.0), hold=holdup
+) -> tuple[Layout, Detections]:
+    """One lane (no overtaking), ``n`` vehicles 2-4 s apart (``headways``) at 25 m/s, give or
+    take 0.3 m/s at every station; between stations 1 and 2 a queue whose holdup (``hold``
+    of the time of entry) rises from 0 to 40 s and falls back (the speeds at the stations do
+    not show it)."""
     rng = np.random.default_rng(seed)
-    t0 = np.cumsum(rng.uniform(2.0, 4.0, n))
+    t0 = np.cumsum(rng.uniform(*headways, n))
     sensor, stamp, speed, target = [], [], [], []
     t, before = t0.copy(), None
     for s, x in enumerate(POSITIONS):
         v = 25.0 + rng.normal(0.0, 0.3, n)
         if before is not None:
             dx = x - POSITIONS[s - 1]
-            t = t + dx * (1 / v + 1 / before) / 2 + (holdup(t) if s == 2 else 0.0)
+            t = t + dx * (1 / v + 1 / before) / 2 + (hold(t) if s == 2 else 0.0)
             t = np.maximum.accumulate(t + 1e-3)  # nobody overtakes in the lane
         before = v
         sensor += [s] * n
@@ -84,6 +90,43 @@ def test_a_growing_queue_is_linked_with_the_count_curves_and_not_without(
     monkeypatch.setattr(count_curves, 'PROFILE_RATIO', np.inf)  # a constant extra time only
     without = make_associator('assignment').associate(layout, d, 120)
     assert accuracy(without, d.target).accuracy < 0.9
+
+
+#: a hold-up every vehicle shares, about two headways of the dense traffic below [s]
+SHIFTED_HOLDUP = 3.2
+
+
+def dense_holdup(seed: int) -> tuple[Layout, Detections]:
+    """One lane, vehicles 1.4-1.8 s apart, every one held up 3.2 s between stations 1 and 2
+    (a stretch of slow road the speeds at the stations do not show)."""
+    return growing_queue(seed, headways=(1.4, 1.8), hold=lambda t: np.full_like(t, SHIFTED_HOLDUP))
+
+
+@pytest.mark.parametrize('seed', [5, 6])
+def test_a_gap_linked_whole_vehicles_off_gets_the_level_of_its_counts(
+    seed: int, monkeypatch
+) -> None:
+    """Each vehicle linked to the one two places ahead fits the speeds as well as the truth
+    (2 headways are about the hold-up), links every vehicle, and every estimate from those
+    links keeps it; the counts pair the k-th with the k-th and sit 3.2 s higher."""
+    layout, d = dense_holdup(seed)
+    first = relabel(link(layout, d, MotionParams(), 'pairwise'))
+    shifted = shifted_gaps(layout, d, first)
+    assert list(shifted) == [1]
+    assert shifted[1] == pytest.approx(SHIFTED_HOLDUP, abs=0.1)
+    anchored = make_associator('assignment').associate(layout, d, 120)
+    assert accuracy(anchored, d.target).accuracy > 0.97
+    monkeypatch.setattr(count_curves, 'SHIFT', np.inf)  # no shifted gaps
+    alone = make_associator('assignment').associate(layout, d, 120)
+    assert accuracy(alone, d.target).accuracy < 0.8
+
+
+def test_a_gap_its_pass_links_right_is_not_shifted() -> None:
+    """The growing queue's free gaps, linked right by the first pass: nothing moves."""
+    layout, d = growing_queue(7)
+    assert shifted_gaps(layout, d, d.target) == {}
+    layout, d = dense_holdup(7)
+    assert shifted_gaps(layout, d, d.target) == {}  # the true links sit where the counts do
 
 
 def test_no_count_curves_across_an_entry_or_an_exit() -> None:

@@ -17,10 +17,20 @@ arrived at the highest speed seen. A missed detection or a false alarm shifts th
 one place from there on, so gaps whose two counts differ by more than a few per cent are
 left out, as are gaps with an entry or an exit between their stations.
 
-:func:`with_count_curves` gives a gap its count curves' extra time only where the data show
-that a constant one does not fit: the count-paired travel times are clearly narrower about
-the profile than about their median (the holdup changes with time), the first pass left a
-part of the gap's vehicles unlinked, and the profile links at least as many of them.
+:func:`with_count_curves` gives a gap its count curves' extra time where the data show that
+the first pass's does not fit, in one of two ways:
+
+* the holdup changes with time: the count-paired travel times are clearly narrower about
+  the profile than about their median, the first pass left a part of the gap's vehicles
+  unlinked, and the profile links at least as many of them; the gap gets the profile;
+* the first pass linked the gap whole vehicles off (``shifted_gaps``): where every vehicle
+  is held up alike and they follow one another a headway apart, a pass that starts with the
+  wrong extra time links each vehicle to one a place or two ahead, its links' residuals are
+  as consistent with that extra time as the true ones would be, and every later estimate
+  from its links keeps it; the gap's count-paired vehicles sit at another level, more
+  consistently than the pass's links sit at theirs. The gap gets the count curves' level
+  (a constant: the counts pair its vehicles to within less than a place).
+
 Elsewhere (free flow, or a gap the speeds already explain) nothing changes.
 """
 
@@ -35,7 +45,7 @@ from mlkm_core.associators.delays import gap_links, robust_location
 from mlkm_core.associators.linking import link, relabel
 from mlkm_core.model.gap_delays import GapDelays, GapProfile
 from mlkm_core.model.motion import MotionParams
-from mlkm_core.types import Detections, Layout
+from mlkm_core.types import Detections, Layout, link_pairs
 
 #: vehicles over which the travel time of the count-paired vehicles is smoothed (a running
 #: median: the few places by which vehicles on several lanes pass one another drop out)
@@ -54,6 +64,12 @@ PROFILE_RATIO = 1.5
 #: ... and the first pass must have linked fewer than this fraction of the gap's vehicles
 #: (the smaller of its two counts): where it links them all, a constant extra time fits [-]
 LINKED = 0.95
+#: a first pass's links sit whole vehicles off the counts where their median travel-time
+#: residual differs from the count-paired vehicles' by more than this share of the gap's
+#: headway (the median at its downstream station) [-]
+SHIFT = 0.5
+#: links of a pass across a gap needed to judge where they sit
+MIN_SHIFT_LINKS = 20
 
 
 def conserving_gaps(n_sensors: int, openings: tuple[np.ndarray, np.ndarray] | None) -> list:
@@ -133,6 +149,50 @@ def count_curve_profiles(
     return out
 
 
+def shifted_gaps(
+    layout: Layout,
+    d: Detections,
+    labels: np.ndarray,
+    openings: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict[int, float]:
+    """Per gap whose links in ``labels`` sit whole vehicles off its counts: the count-paired
+    vehicles' extra time [s] (the median of their travel-time residuals).
+
+    A gap qualifies where its conserving counts pair its vehicles (``count_pairs``) to within
+    less than a place, and more consistently than the links do: the count-paired residuals'
+    robust spread about their running median is below the gap's headway and below the links'
+    own robust spread; and where the two medians differ by more than ``SHIFT`` headways.
+    A pass linked one place off has residuals of the right size but the wrong level; on
+    several lanes, where vehicles pass one another, the count pairs scatter more than right
+    links do, so a pass that links the gap right is left alone."""
+    out: dict[int, float] = {}
+    pos, u = layout.positions, 1.0 / d.velocity
+    fastest = float(np.quantile(d.velocity, FAST_QUANTILE)) if len(d) else 0.0
+    a, b = link_pairs(d, labels)
+    for g in conserving_gaps(layout.n_sensors, openings):
+        k = (d.sensor_index[a] == g) & (d.sensor_index[b] == g + 1)
+        pairs = count_pairs(layout, d, g, fastest)
+        if pairs is None or k.sum() < MIN_SHIFT_LINKS:
+            continue
+        dx = pos[g + 1] - pos[g]
+        counted = _residuals(d, u, dx, *pairs)
+        linked = _residuals(d, u, dx, a[k], b[k])
+        downstream = np.sort(d.stamp[d.sensor_index == g + 1])
+        headway = float(np.median(np.diff(downstream)))
+        spread = robust_spread(counted - running_median(counted, WINDOW))
+        level = float(np.median(counted))
+        if spread >= min(headway, robust_spread(linked)):
+            continue
+        if abs(level - float(np.median(linked))) > SHIFT * headway:
+            out[g] = level
+    return out
+
+
+def _residuals(d: Detections, u: np.ndarray, dx: float, a: np.ndarray, b: np.ndarray):
+    """Travel time from ``a`` to ``b`` beyond the trapezoid of their speeds [s]."""
+    return d.stamp[b] - d.stamp[a] - dx * (u[a] + u[b]) / 2
+
+
 def with_count_curves(
     layout: Layout,
     d: Detections,
@@ -141,10 +201,11 @@ def with_count_curves(
     openings: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[MotionParams, np.ndarray]:
     """``base`` (without delays) and its first pass's tracks ``raw``; returns them with the
-    count curves' extra time in the gaps where a constant one does not fit (see the module
+    count curves' extra time in the gaps where the first pass's does not fit (see the module
     docstring), and the tracks of a pass with it; unchanged where no gap qualifies."""
     n = layout.n_sensors
-    before = gap_links(layout, d, relabel(raw))
+    labels = relabel(raw)
+    before = gap_links(layout, d, labels)
     count = np.bincount(d.sensor_index, minlength=n)
     unlinked = [g for g in range(n - 1) if before[g] < LINKED * min(count[g], count[g + 1])]
     found = {
@@ -152,11 +213,16 @@ def with_count_curves(
         for g, f in count_curve_profiles(layout, d, openings, unlinked).items()
         if f[2] >= PROFILE_RATIO
     }
-    if not found:
+    # a shifted gap keeps its counts' constant level whatever the links count (a pass one
+    # place off links as many vehicles as the right one), unless it keeps their profile
+    shifted = shifted_gaps(layout, d, labels, openings)
+    if not found and not shifted:
         return base, raw
 
     def delays(gaps: list[int]) -> GapDelays:
         level = np.zeros(n - 1)
+        for g, x in shifted.items():
+            level[g] = x
         for g in gaps:
             level[g] = found[g][0]
         return GapDelays.per_gap(
@@ -166,7 +232,7 @@ def with_count_curves(
     trial = link(layout, d, replace(base, delay=delays(list(found))), 'pairwise')
     after = gap_links(layout, d, relabel(trial))
     keep = [g for g in found if after[g] >= before[g]]
-    if not keep:
+    if not keep and not shifted:
         return base, raw
     if len(keep) == len(found):
         return replace(base, delay=delays(keep)), trial
@@ -176,10 +242,10 @@ def with_count_curves(
 
 def beside(delay: GapDelays | None, counted: GapDelays | None) -> GapDelays | None:
     """``delay`` (constant extra times) in the gaps that have none from the count curves
-    (``counted``), whose profiles are kept."""
+    (``counted``: a profile, or a level of a shifted gap), whose profiles are kept."""
     if delay is None or counted is None:
         return delay
-    own = np.zeros(delay.gap_time.size, bool)
+    own = counted.gap_time != 0
     own[[prof.gap for prof in counted.profiles]] = True
     mean = np.where(own, counted.gap_time, delay.gap_time)
     return GapDelays.per_gap(delay.positions, mean, np.zeros_like(mean), counted.profiles)
