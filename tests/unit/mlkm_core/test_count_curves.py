@@ -129,6 +129,18 @@ def test_a_gap_its_pass_links_right_is_not_shifted() -> None:
     assert shifted_gaps(layout, d, d.target) == {}  # the true links sit where the counts do
 
 
+def test_the_constant_extra_times_keep_the_gaps_of_the_count_curves() -> None:
+    """``beside``: a gap the counts gave a level (no profile) or a profile keeps theirs; the
+    other gaps take the constant extra times estimated after them."""
+    pos = np.array([0.0, 100.0, 200.0, 300.0])
+    profile = GapProfile(2, np.array([0.0, 10.0]), np.array([-1.0, 1.0]))
+    counted = GapDelays.per_gap(pos, np.array([0.0, 3.2, 7.0]), np.zeros(3), (profile,))
+    delay = GapDelays.per_gap(pos, np.array([5.0, 0.0, 0.0]), np.zeros(3))
+    both = count_curves.beside(delay, counted)
+    assert both.gap_time.tolist() == pytest.approx([5.0, 3.2, 7.0])
+    assert both.profiles == (profile,)
+
+
 def test_no_count_curves_across_an_entry_or_an_exit() -> None:
     positions = np.array([0.0, 100.0, 200.0, 300.0])
     openings = MotionParams.road_openings(positions, (150.0,), (250.0,))
