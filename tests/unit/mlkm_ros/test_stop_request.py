@@ -34,3 +34,28 @@ def test_cleared_the_next_signal_counts_again() -> None:
     assert not stop.requested and stop.signum is None
     stop.handler(signal.SIGINT, None)
     assert stop.requested and stop.signum == signal.SIGINT
+
+
+class _Refused(Exception):
+    pass
+
+
+def _refused_factory():
+    raise _Refused('netconvert failed (exit -2)')
+
+
+def test_a_refusal_after_a_stop_request_ends_the_start_up_with_0(capsys) -> None:
+    """Ctrl-C reaches the whole process group: a helper the constructor runs dies of it and
+    the constructor raises what would otherwise be a refusal; the node ends with 0."""
+    from mlkm_ros import lifecycle
+
+    refusals = [((_Refused,), 'error: ', 2)]
+    lifecycle.STOP.clear()
+    try:
+        assert lifecycle.start_node('probe', _refused_factory, refusals) == (None, 2)
+        assert 'probe: error: netconvert failed' in capsys.readouterr().err
+        lifecycle.STOP.request(signal.SIGINT)
+        assert lifecycle.start_node('probe', _refused_factory, refusals) == (None, 0)
+        assert 'probe: stopped during start-up (netconvert failed' in capsys.readouterr().err
+    finally:
+        lifecycle.STOP.clear()

@@ -154,7 +154,10 @@ def start_node[NodeT](
 ) -> tuple[NodeT | None, int]:
     """Construct a node (after :func:`init_rclpy`): (the node, 0), or, when the constructor
     raises one of ``refusals``' exceptions, (None, its exit status) after printing
-    ``<name>: <text><exception>`` to stderr and shutting rclpy down."""
+    ``<name>: <text><exception>`` to stderr and shutting rclpy down. A refusal raised after a
+    stop was requested is the stop's own doing (Ctrl-C reaches the whole process group, so a
+    helper the constructor runs, such as SUMO's netconvert, dies of it first): (None, 0),
+    with a note of what was cut short."""
     import rclpy
 
     try:
@@ -162,7 +165,11 @@ def start_node[NodeT](
     except BaseException as exc:
         for types, text, status in refusals:
             if isinstance(exc, types):
-                print(f'{name}: {text}{exc}', file=sys.stderr)
+                if STOP.requested:
+                    print(f'{name}: stopped during start-up ({exc})', file=sys.stderr)
+                    status = 0
+                else:
+                    print(f'{name}: {text}{exc}', file=sys.stderr)
                 rclpy.try_shutdown()
                 return None, status
         raise
