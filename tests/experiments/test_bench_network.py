@@ -11,6 +11,9 @@ from mlkm_experiments.bench import network
 
 
 @pytest.mark.slow
+# every network method and the stream on three SUMO networks: 2-5 min on a 2-core machine
+# that two other processes keep busy (the stream solves its windows inside its pushes)
+@pytest.mark.timeout(900)
 def test_one_seed_per_family_end_to_end_through_the_cli(tmp_path):
     from mlkm_assoc import cli
 
@@ -21,6 +24,8 @@ def test_one_seed_per_family_end_to_end_through_the_cli(tmp_path):
     assert [c['family'] for c in data['cells']] == list(network.FAMILIES)
     for cell in data['cells']:
         assert cell['seeds'] == [1] and cell['draws'][0]['family'] == cell['family']
+        assert cell['overrides'] == network.QUICK_OVERRIDES
+        assert cell['draws'][0]['vehicles'] == network.QUICK_OVERRIDES['vehicles']
         for variant in network.VARIANTS:
             runs = cell['variants'][variant]
             assert set(runs) == {'assignment', 'gmlkm', 'multiframe', 'mlkm_robust',
