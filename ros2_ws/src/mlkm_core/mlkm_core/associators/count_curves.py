@@ -141,7 +141,7 @@ def count_curve_profiles(
         if pairs is None:
             continue
         a, b = pairs
-        e = d.stamp[b] - d.stamp[a] - (pos[g + 1] - pos[g]) * (u[a] + u[b]) / 2
+        e = _residuals(d, u, pos[g + 1] - pos[g], a, b)
         smooth = running_median(e, WINDOW)
         level = float(np.median(smooth))
         ratio = robust_spread(e) / max(robust_spread(e - smooth), 1e-3)

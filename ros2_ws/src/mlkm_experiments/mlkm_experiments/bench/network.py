@@ -106,10 +106,10 @@ def run_network(log: Log, quick: bool, cache_dir: Path | None = None) -> dict:
     methods = [*NETWORK_METHODS, STREAM]
     peer = [PEER] if stonesoup_version() and not quick else []
     seeds = list(range(1, (SEEDS_QUICK if quick else SEEDS_FULL) + 1))
+    overrides = QUICK_OVERRIDES if quick else {}
     cells = []
     for family in FAMILIES:
         t0 = time.monotonic()
-        overrides = QUICK_OVERRIDES if quick else {}
         sets = [_dataset(family, s, overrides, cache_dir) for s in seeds]
         cell: dict = {
             'family': family,
