@@ -57,10 +57,23 @@ class Source:
         )
         self.layout_pub.publish(conv.layout_to_msg(LAYOUT, conv.seconds_to_ns(1.0)))
 
-    def readers(self) -> set[bytes]:
-        """The endpoints subscribed to the first sensor's topic (a restarted node's are new)."""
-        topic = self.node.resolve_topic_name(qos.detections_topic(NAMES[0]))
-        return {bytes(i.endpoint_gid) for i in self.node.get_subscriptions_info_by_topic(topic)}
+    def endpoints(self) -> set[bytes]:
+        """The node's endpoints seen in the graph: the readers of every sensor's topic and the
+        writers of /mlkm/tracks (a restarted node's are new; a killed node's linger until its
+        lease ends)."""
+        found = set()
+        for name in NAMES:
+            topic = self.node.resolve_topic_name(qos.detections_topic(name))
+            found |= {
+                (name, bytes(i.endpoint_gid))
+                for i in self.node.get_subscriptions_info_by_topic(topic)
+            }
+        topic = self.node.resolve_topic_name(qos.TRACKS_TOPIC)
+        found |= {
+            ('tracks', bytes(i.endpoint_gid))
+            for i in self.node.get_publishers_info_by_topic(topic)
+        }
+        return found
 
     def vehicle(self, t0: float, speed: float, stations: int) -> None:
         for s in range(stations):
@@ -108,8 +121,8 @@ def test_a_restarted_node_numbers_new_tracks_and_ends_the_old_ones(
 ) -> None:
     src = Source(rclpy_context)
 
-    def wait(predicate, timeout: float = 120.0) -> None:
-        assert spin_until(src.executor, predicate, timeout), 'timed out'
+    def wait(predicate, timeout: float = 120.0, seen=lambda: '') -> None:
+        assert spin_until(src.executor, predicate, timeout), f'timed out; {seen()}'
 
     try:
         first = start_node(ros_process)
@@ -123,14 +136,14 @@ def test_a_restarted_node_numbers_new_tracks_and_ends_the_old_ones(
                 == 2
             )
         )
-        old_readers = src.readers()
+        old = src.endpoints()
         os.killpg(first.pid, signal.SIGKILL)  # the node and its tracker and solver processes
         assert first.wait(30.0) is not None
 
         start_node(ros_process)
-        wait(lambda: bool(src.readers() - old_readers))
+        # every sensor topic and the track topic have the restarted node's endpoints
+        wait(lambda: {topic for topic, _ in src.endpoints() - old} == {*NAMES, 'tracks'})
         n_before = len(src.tracks)  # what the dead node published (the new one: no tracks yet)
-        wait(lambda: src.node.count_publishers(qos.TRACKS_TOPIC) >= 1)
         third = conv.seconds_to_ns(110.0)
         src.vehicle(110.0, 50.0, 4)
         # the restarted node tracks the vehicle and, once the road is quiet, flushes it
@@ -140,8 +153,12 @@ def test_a_restarted_node_numbers_new_tracks_and_ends_the_old_ones(
                 and any(conv.time_to_ns(x) > third for x in t.stamps)
                 for m in src.tracks[n_before:]
                 for t in m.tracks
-            )
-        )
+            ),
+            seen=lambda: 'after the restart: ' + repr([
+                (m.run, [(t.status, len(t.stamps)) for t in m.tracks])
+                for m in src.tracks[n_before:]
+            ]),
+        )  # fmt: skip
     finally:
         src.close()
     before = [m for m in src.tracks[:n_before] if m.tracks]
