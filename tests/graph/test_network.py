@@ -1,4 +1,4 @@
-"""DDS stays on loopback (sockets checked with ss), and what env.sh gives a shell.
+"""DDS stays on loopback (ss checks the sockets; no shared memory), and what env.sh gives.
 
 The loopback default: env.sh, the launchers (graph_env) and the test fixtures select the Fast
 DDS profile mlkm_ros/fastdds_loopback.xml unless the user chose otherwise.
@@ -49,6 +49,10 @@ def test_a_running_node_binds_udp_on_loopback_only(ros_process) -> None:
     assert sockets, 'the node has no UDP socket at all: is the profile a valid one?'
     outside = [a for a in sockets if not _host(a).is_loopback]
     assert outside == [], f'sockets beyond loopback: {outside} (all: {sockets})'
+    # no shared-memory transport: a peer killed with SIGKILL could leave its ports unusable
+    maps = Path(f'/proc/{sim.pid}/maps').read_text()
+    shm = sorted({line.split()[-1] for line in maps.splitlines() if '/dev/shm/fastrtps' in line})
+    assert shm == [], f'Fast DDS shared memory mapped: {shm}'
 
 
 def test_the_profile_is_the_default_of_launchers_and_fixtures(ros_env) -> None:

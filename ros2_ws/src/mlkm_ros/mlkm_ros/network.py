@@ -2,10 +2,11 @@
 
 ``loopback_env(env)`` is what env.sh does in bash, for the environments of the processes the
 launchers and the tests start. Unless the user chose otherwise it selects the Fast DDS profile
-``fastdds_loopback.xml`` (every socket on 127.0.0.1, shared memory, unicast discovery to
-127.0.0.1, no multicast) with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT``: with the
-LOCALHOST range, rmw_fastrtps adds a UDP transport of its own that binds 0.0.0.0 and every
-interface's address, so only the profile keeps the sockets on loopback. Discovery stays local.
+``fastdds_loopback.xml`` (every socket on 127.0.0.1, unicast discovery to 127.0.0.1, no
+multicast, no shared memory: a killed process can leave its peers' shared-memory ports
+unusable) with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT``: with the LOCALHOST range,
+rmw_fastrtps adds a UDP transport of its own that binds 0.0.0.0 and every interface's address,
+so only the profile keeps the sockets on loopback. Discovery stays local.
 
 The user chose otherwise when any of these is set: ``MLKM_DDS_LOOPBACK=0``, a Fast DDS profile
 file of their own (``FASTRTPS_DEFAULT_PROFILES_FILE`` / ``FASTDDS_DEFAULT_PROFILES_FILE``),
