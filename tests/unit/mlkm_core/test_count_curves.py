@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from mlkm_core.associators import count_curves, make_associator
+from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.count_curves import (
     conserving_gaps,
     count_curve_profiles,
@@ -119,6 +120,18 @@ def test_a_gap_linked_whole_vehicles_off_gets_the_level_of_its_counts(
     monkeypatch.setattr(count_curves, 'SHIFT', np.inf)  # no shifted gaps
     alone = make_associator('assignment').associate(layout, d, 120)
     assert accuracy(alone, d.target).accuracy < 0.8
+
+
+def test_a_stream_window_is_calibrated_without_the_count_curves() -> None:
+    """Counts pair the k-th vehicle up a gap with the k-th down it only where every passage
+    is whole; a stream window cuts vehicles in transit at both ends, so its calibration
+    (``whole_passages=False``) leaves the counts' level of the hold-up out."""
+    layout, d = dense_holdup(5)
+    whole = estimate_params(layout, d)
+    window = estimate_params(layout, d, whole_passages=False)
+    assert whole.delay is not None
+    assert whole.delay.gap_time[1] == pytest.approx(SHIFTED_HOLDUP, abs=0.1)
+    assert window.delay is None or abs(window.delay.gap_time[1] - SHIFTED_HOLDUP) > 1.0
 
 
 def test_a_gap_its_pass_links_right_is_not_shifted() -> None:

@@ -330,7 +330,10 @@ FIRST_PASS_SHARE = 0.5  # 0.33 measured on 10^5 detections, 0.63 on 10^6
 
 
 def estimate_params(
-    layout: Layout, d: Detections, openings: tuple[np.ndarray, np.ndarray] | None = None
+    layout: Layout,
+    d: Detections,
+    openings: tuple[np.ndarray, np.ndarray] | None = None,
+    whole_passages: bool = True,
 ) -> MotionParams:
     """Self-calibration: pass 1 with generic parameters, then moments, then maximum likelihood.
 
@@ -345,6 +348,11 @@ def estimate_params(
     the stations' median speeds show a change every vehicle shares (``model.traffic``: the
     end of road works), the models follow it from the moments on, once the gaps' extra times
     are settled (the first pass and the delays are chosen without it).
+
+    ``whole_passages``: every vehicle in ``d`` is seen at every station it passes, so the
+    stations' counts pair vehicles. False for a stream window: it cuts the vehicles in transit
+    at both its ends, the k-th vehicle up a gap is not the k-th down it, and the count curves
+    are left out.
     """
     base = MotionParams()
     cues = generic_cues(layout, d)
@@ -353,7 +361,7 @@ def estimate_params(
     with stage(0.0, FIRST_PASS_SHARE):
         raw = link(layout, d, base, 'pairwise')
     with stage(FIRST_PASS_SHARE, 1.0, detail=False):
-        return _estimate_from(layout, d, base, cues, raw, openings)
+        return _estimate_from(layout, d, base, cues, raw, openings, whole_passages)
 
 
 def _estimate_from(
@@ -363,9 +371,11 @@ def _estimate_from(
     cues,
     raw: np.ndarray,
     openings: tuple[np.ndarray, np.ndarray] | None = None,
+    whole_passages: bool = True,
 ) -> MotionParams:
     """``estimate_params`` after pass 1 (``raw``, with ``base``)."""
-    base, raw = with_count_curves(layout, d, base, raw, openings)
+    if whole_passages:
+        base, raw = with_count_curves(layout, d, base, raw, openings)
     delay = beside(estimate_delay(layout, d, relabel(raw)), base.delay)
     if delay is not None:
         # keep the extra time only in gaps where it lets clearly more tracks through (a delay

@@ -144,4 +144,5 @@ def calibrate_on(layout: Layout, rows: list[tuple[int, float, float]]) -> Motion
     if len(rows) < MIN_CALIBRATION:
         return None
     arr = np.array(rows)
-    return estimate_params(layout, Detections(arr[:, 0].astype(np.int64), arr[:, 1], arr[:, 2]))
+    d = Detections(arr[:, 0].astype(np.int64), arr[:, 1], arr[:, 2])
+    return estimate_params(layout, d, whole_passages=False)  # rows cut out of a stream

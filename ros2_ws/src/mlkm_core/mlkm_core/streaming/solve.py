@@ -112,7 +112,7 @@ def solve(problem: WindowProblem) -> WindowSolution:
             try:
                 cfg = problem.config
                 openings = MotionParams.road_openings(layout.positions, cfg.entries, cfg.exits)
-                motion = estimate_params(layout, ordered, openings)
+                motion = estimate_params(layout, ordered, openings, whole_passages=False)
             except ValueError:
                 motion = None  # solve_window replaces the method for this window
             # a model calibrated on too few detections is used for this window only
