@@ -57,7 +57,7 @@ class Source:
         )
         self.layout_pub.publish(conv.layout_to_msg(LAYOUT, conv.seconds_to_ns(1.0)))
 
-    def endpoints(self) -> set[bytes]:
+    def endpoints(self) -> set[tuple[str, bytes]]:
         """The node's endpoints seen in the graph: the readers of every sensor's topic and the
         writers of /mlkm/tracks (a restarted node's are new; a killed node's linger until its
         lease ends)."""
