@@ -141,6 +141,32 @@ def test_the_merge_joins_pieces_under_the_upstream_id_in_either_order(handoff_fi
         assert m.retired == 1
 
 
+def test_a_continued_track_waits_for_the_piece_its_continuation_names() -> None:
+    # shard 1's hand-off (the continuation) overtakes its TrackArray (another topic): the
+    # upstream piece is final and settled, yet the track is not final until the downstream
+    # piece is in, and then it carries both
+    m = TrackMerge(2, horizon=60.0)
+    up, here = 0 * MAX_SHARDS + 0, 1 * MAX_SHARDS + 1
+    m.add_tracks(0, 1, [(up, FINAL, [row(0, 1, 0), row(1, 2, 10)])], [], 5.0)
+    m.add_handoff(0, 1, [(up, 2.0)], [], 5.0, 2.0)
+    out = m.add_handoff(1, 1, [], [(up, here)], 70.0, 70.0)
+    assert [(t, s) for t, s, _ in out.tracks] == [(up, CONFIRMED)]
+    out = m.add_tracks(1, 1, [(here, FINAL, [row(2, 3, 20)])], [], 70.0)
+    assert out.tracks == [(up, FINAL, [row(0, 1, 0), row(1, 2, 10), row(2, 3, 20)])]
+
+
+def test_a_continuation_of_an_ended_run_waits_for_nothing() -> None:
+    # the downstream shard restarted before its piece reached the merge: that piece will
+    # never come, and the upstream track ends as it stands
+    m = TrackMerge(2, horizon=60.0)
+    up, here = 0, 1 * MAX_SHARDS + 1
+    m.add_tracks(0, 1, [(up, FINAL, [row(0, 1, 0)])], [], 5.0)
+    m.add_handoff(0, 1, [(up, 1.0)], [], 5.0, 1.0)
+    m.add_handoff(1, 1, [], [(up, here)], 3.0, 3.0)
+    out = m.add_handoff(1, 2, [], [], 70.0, 70.0)  # a later run of shard 1
+    assert [(t, s) for t, s, _ in out.tracks] == [(up, FINAL)]
+
+
 def test_an_offer_nobody_takes_ends_the_track_after_the_horizon() -> None:
     m = TrackMerge(2, horizon=10.0)
     m.add_tracks(1, 1, [], [], 0.0)

@@ -7,9 +7,10 @@ that began most upstream and publishes one track under that id: the union of the
 ordered by position. A piece published on its own before its continuation was known is
 retired (published once more with no detection, FINAL) when it joins its upstream track.
 
-Status: FINAL once every piece is FINAL and no continuation can still come: each piece's
-shard has settled past the piece's newest detection (so the offers and continuations that
-name the piece are in: the tracks and the hand-off travel on two topics, in either order),
+Status: FINAL once every piece is in and FINAL and no continuation can still come. A
+continuation may overtake the TrackArray of the piece it names (two topics, either order):
+that piece is waited for, unless its shard's run ended. Each piece's shard has settled past
+the piece's newest detection (so the offers and continuations that name the piece are in),
 and the last piece was not offered downstream, or the next shard's ``settled_until`` passed
 its offered detection by the hand-off horizon (an offer no shard accepts ends the track
 there, as an exit would), or the next shard settled everything it took. Otherwise CONFIRMED
@@ -68,6 +69,7 @@ class TrackMerge:
         self._pieces: dict[int, Piece] = {}
         self._parent: dict[int, int] = {}  # piece -> the upstream piece it continues
         self._child: dict[int, int] = {}
+        self._continued_in: dict[int, int] = {}  # piece -> the run of its shard that said so
         self._offered: dict[int, float] = {}  # piece -> its latest offered stamp [s]
         self._shown: set[int] = set()  # ids published with detections, not yet FINAL
         self._status_out: dict[int, int] = {}  # the status each id was last published with
@@ -115,6 +117,7 @@ class TrackMerge:
             if up in self._child or here in self._parent:
                 continue  # each piece continues at most one, and is continued at most once
             self._parent[here], self._child[up] = up, here
+            self._continued_in[here] = run
             self.continued += 1
             if here in self._shown:
                 retire.append(here)
@@ -172,11 +175,21 @@ class TrackMerge:
             chain.append(self._child[chain[-1]])
         return chain
 
-    def _status(self, chain: list[Piece | None], last: int) -> int:
+    def _awaited(self, track_id: int) -> bool:
+        """A continuation named the piece, whose TrackArray has not come yet: its shard
+        publishes it before the hand-off, but on another topic, so it may arrive later (it
+        never will once that shard's run ended)."""
+        run = self._continued_in.get(track_id)
+        return run is not None and run == self._runs[self._shard(track_id)]
+
+    def _status(self, ids: list[int], chain: list[Piece | None]) -> int:
         pieces = [p for p in chain if p is not None]
         if all(p.status == FINAL for p in pieces):
             if any(not self._settled_past(p) for p in pieces):
                 return CONFIRMED  # an offer or a continuation naming it may be on its way
+            if any(p is None and self._awaited(i) for i, p in zip(ids, chain, strict=True)):
+                return CONFIRMED
+            last = ids[-1]
             shard = self._shard(last)
             stamp = self._offered.get(last)
             if stamp is None or shard + 1 >= self.count:
@@ -198,7 +211,7 @@ class TrackMerge:
             pieces = [self._pieces.get(i) for i in ids]
             if all(p is None for p in pieces):
                 continue  # only hand-off news of a piece not published yet
-            status = self._status(pieces, ids[-1])
+            status = self._status(ids, pieces)
             if root not in changed and self._status_out.get(root) == status:
                 continue
             self._status_out[root] = status
@@ -217,6 +230,7 @@ class TrackMerge:
             self._offered.pop(i, None)
             self._shown.discard(i)
             self._status_out.pop(i, None)
+            self._continued_in.pop(i, None)
             up = self._parent.pop(i, None)
             if up is not None:
                 self._child.pop(up, None)
