@@ -43,7 +43,9 @@ NS_PER_S = 1_000_000_000
 
 
 class TrackListener:
-    """The merged /mlkm/tracks: the latest track of every detection and the FINAL ids."""
+    """The merged /mlkm/tracks: the latest track of every detection and the FINAL ids; and
+    every shard's own /shard_<k>/mlkm/tracks, so that a detection missing from the merged view
+    is told apart from one that no shard published."""
 
     def __init__(self, context) -> None:
         self.node = Node('shards_listener', context=context)
@@ -53,6 +55,14 @@ class TrackListener:
         self.final: set[int] = set()
         self.committed_ns = 0
         self.node.create_subscription(TrackArray, qos.TRACKS_TOPIC, self._on, qos.TRACKS_QOS)
+        self.shard_labels: list[dict[tuple[int, int, int], int]] = [{} for _ in range(SHARDS)]
+        for k in range(SHARDS):
+            self.node.create_subscription(
+                TrackArray,
+                f'/shard_{k}/{qos.TRACKS_TOPIC}',
+                lambda msg, k=k: _take(self.shard_labels[k], msg),
+                qos.TRACKS_QOS,
+            )
         self.diag: dict[str, dict[str, str]] = {}
         self.node.create_subscription(
             DiagnosticArray, qos.DIAGNOSTICS_TOPIC, self._on_diag, qos.DIAGNOSTICS_QOS
@@ -63,12 +73,12 @@ class TrackListener:
             self.diag[status.name] = {kv.key: kv.value for kv in status.values}
 
     def _on(self, msg: TrackArray) -> None:
-        d = conv.stream_tracks_from_msg(msg)
-        for i in range(d.labels.size):
-            key = (int(d.sensor_ids[i]), int(d.lanes[i]), int(d.stamps_ns[i]))
-            self.labels[key] = int(d.labels[i])
+        self.committed_ns = max(self.committed_ns, _take(self.labels, msg))
         self.final.update(int(t.track_id) for t in msg.tracks if t.status == 2)
-        self.committed_ns = max(self.committed_ns, d.committed_until_ns)
+
+    def published_by(self, key: tuple[int, int, int]) -> list[tuple[int, int]]:
+        """(shard, its track) of every shard that published the detection ``key``."""
+        return [(k, s[key]) for k, s in enumerate(self.shard_labels) if key in s]
 
     def subscribers(self, topic: str) -> int:
         return self.node.count_subscribers(topic)
@@ -76,6 +86,15 @@ class TrackListener:
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()
+
+
+def _take(labels: dict[tuple[int, int, int], int], msg: TrackArray) -> int:
+    """The latest track of every detection of a stream TrackArray into ``labels``; its
+    committed_until [ns]."""
+    d = conv.stream_tracks_from_msg(msg)
+    for i in range(d.labels.size):
+        labels[(int(d.sensor_ids[i]), int(d.lanes[i]), int(d.stamps_ns[i]))] = int(d.labels[i])
+    return d.committed_until_ns
 
 
 @pytest.fixture
@@ -122,7 +141,7 @@ def test_three_shards_equal_the_offline_shards_and_one_node(
     one = StreamTracker(road, config)
     assert offline.accepted[1] > 50 and offline.accepted[2] > 50  # vehicles cross borders
 
-    shards = []
+    shards = []  # each waits for its two track subscribers: track_merge and the listener
     for k in range(SHARDS):
         shards.append(
             ros_process(
@@ -130,7 +149,7 @@ def test_three_shards_equal_the_offline_shards_and_one_node(
                 '-r', f'__ns:=/shard_{k}', '-p', 'source_namespace:=/',
                 '-p', 'mode:=stream', '-p', f'stream_method:={METHOD}', '-p', f'lag:={LAG}',
                 '-p', f'shard_count:={SHARDS}', '-p', f'shard_index:={k}',
-                '-p', 'wait_for_track_subscribers:=1',
+                '-p', 'wait_for_track_subscribers:=2',
             )
         )  # fmt: skip
     merge = ros_process(
@@ -169,9 +188,13 @@ def test_three_shards_equal_the_offline_shards_and_one_node(
         180.0,
     )
     missing = [k for k in keys if k not in listener.labels]
+    unpublished = [k for k in missing if not listener.published_by(k)]
+    lost = [listener.published_by(k) for k in missing if k not in unpublished]
     assert everything, (
         f'{len(missing)} detections without a track (sensor id, lane, stamp ns: '
-        f'{missing[:20]}), committed until {listener.committed_ns} ns of '
+        f'{missing[:20]}), {len(unpublished)} of them published by no shard, the others by '
+        f'(shard, track) {lost[:20]}'
+        f'; committed until {listener.committed_ns} ns of '
         f'{max(k[2] for k in keys)}; diagnostics {listener.diag}\n'
         + ''.join(p.output() for p in procs)
     )
