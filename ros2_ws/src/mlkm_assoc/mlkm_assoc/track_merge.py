@@ -27,6 +27,7 @@ from mlkm_ros import lifecycle, qos
 from mlkm_ros.handoff_conversions import handoff_from_msg, stream_rows_from_msg
 from mlkm_ros.held_publisher import HeldPublisher
 from mlkm_ros.params import ParamSpec, declare_parameters, positive
+from mlkm_ros.publishing import ReliablePublisher
 from mlkm_ros.track_conversions import stream_tracks_to_msg
 from road_sensor_msgs.msg import TrackArray, TrackHandoff
 
@@ -74,8 +75,11 @@ class TrackMergeNode(Node):
         self._method = ''
         self._counts: Counter = Counter()
         self._last_until = -math.inf  # committed_until last published [s]
+        # a slow subscriber holds the merge back (and through it the shards), nothing is lost
         self._pub = HeldPublisher(
-            self.create_publisher(TrackArray, qos.TRACKS_TOPIC, qos.TRACKS_QOS),
+            ReliablePublisher(
+                self.create_publisher(TrackArray, qos.TRACKS_TOPIC, qos.TRACKS_QOS), self.context
+            ),
             p['wait_for_track_subscribers'],
         )
         self._diag_pub = self.create_publisher(

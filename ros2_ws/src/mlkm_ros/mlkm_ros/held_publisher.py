@@ -19,7 +19,9 @@ class HeldPublisher:
     once); until then the messages are held, in order, and :meth:`poll` (from a timer) or the
     next ``publish`` releases them. Released once, it never holds again: a subscriber that
     leaves later does not stop the topic. Thread-safe; ``on_hold(held, count)`` is called at
-    every message held (the node logs it, throttled)."""
+    every message held (the node logs it, throttled). ``publisher`` may block (a
+    :class:`~mlkm_ros.publishing.ReliablePublisher` waiting for a slow reader): once released,
+    no lock is held around it, so :meth:`poll` from a timer never waits on it."""
 
     def __init__(
         self,
@@ -51,23 +53,28 @@ class HeldPublisher:
         return self._held is None
 
     def publish(self, msg: Any) -> None:
+        if self._held is None:  # released: the publisher's own back-pressure, no lock held
+            self._publisher.publish(msg)
+            return
         with self._lock:
             if self._held is not None and not self._release():
                 self._held.append(msg)
                 if self._on_hold is not None:
                     self._on_hold(len(self._held), self._publisher.get_subscription_count())
                 return
-            self._publisher.publish(msg)
+        self._publisher.publish(msg)
 
     def poll(self) -> bool:
         """Release the held messages if the subscribers are there; True once released."""
+        if self._held is None:
+            return True
         with self._lock:
             return self._held is None or self._release()
 
     def _release(self) -> bool:
         if self._publisher.get_subscription_count() < self._least:
             return False
-        held, self._held = self._held or [], None
-        for msg in held:
+        for msg in self._held or []:
             self._publisher.publish(msg)
+        self._held = None  # only now: a publish in another thread waits for the held ones
         return True

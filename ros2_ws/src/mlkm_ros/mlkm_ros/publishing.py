@@ -88,6 +88,10 @@ class ReliablePublisher:
     def topic_name(self) -> str:
         return self._publisher.topic_name
 
+    def get_subscription_count(self) -> int:
+        """Matched subscriptions of the wrapped publisher (as rclpy's ``Publisher``)."""
+        return self._publisher.get_subscription_count()
+
     def _stopped(self) -> bool:
         return self._stop.is_set() or not self._context.ok()
 
