@@ -171,3 +171,48 @@ def test_ctrl_c_while_waiting_for_subscribers_exits_cleanly(ros_process) -> None
         out = sim.output()
         assert code == 0, out
         assert 'RCLError' not in out and 'Traceback' not in out, out
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_a_stalled_handoff_reader_loses_no_handoff(rclpy_context, ros_env, tmp_path) -> None:
+    # The hand-off is KEEP_LAST (a late joiner gets the last HANDOFF_HISTORY_DEPTH). Its
+    # readers keep everything and the writer's flow-control window stays below the depth:
+    # with a KEEP_LAST reader, or a writer without the window, a reader that takes nothing
+    # for a few seconds ends up with the newest 1,000 of these 3,000 messages.
+    from rclpy.node import Node
+
+    from mlkm_assoc.shard_link import handoff_publisher
+    from mlkm_ros import qos
+    from road_sensor_msgs.msg import TrackHandoff
+
+    expected = 3 * qos.HANDOFF_HISTORY_DEPTH
+    log = open(tmp_path / 'stalled_reader.log', 'wb')  # noqa: SIM115 - closed below
+    sub = subprocess.Popen(
+        [sys.executable, str(HERE / 'stalled_handoff_reader.py'), str(expected), '5', '60'],
+        env=ros_env,
+        stdin=subprocess.DEVNULL,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
+    node = Node('handoff_writer', context=rclpy_context)
+    try:
+        pub = handoff_publisher(node)
+        deadline = time.monotonic() + 120
+        while pub.get_subscription_count() < 1:
+            assert time.monotonic() < deadline, (tmp_path / 'stalled_reader.log').read_text()
+            time.sleep(0.01)
+        for run in range(expected):
+            assert pub.publish(TrackHandoff(shard=0, shard_count=2, run=run))
+        assert pub.window_waits >= 1  # the window held the writer back for the reader
+        sub.wait(timeout=300)
+        out = (tmp_path / 'stalled_reader.log').read_text()
+        assert out.strip().splitlines()[-1] == f'received {expected} distinct {expected}', out
+    finally:
+        node.destroy_node()
+        if sub.poll() is None:
+            os.killpg(sub.pid, signal.SIGKILL)
+            sub.wait()
+        log.close()

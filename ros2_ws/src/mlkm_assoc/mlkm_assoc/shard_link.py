@@ -21,6 +21,7 @@ from mlkm_core.types import Layout
 from mlkm_ros import qos
 from mlkm_ros.handoff_conversions import handoff_from_msg
 from mlkm_ros.params import ParamSpec, positive
+from mlkm_ros.publishing import ReliablePublisher
 from road_sensor_msgs.msg import TrackHandoff
 
 SHARD_PARAMS = ('shard_index', 'shard_count', 'shard_margin', 'handoff_horizon')
@@ -77,6 +78,16 @@ def source_topic(node: Node, namespace: str, topic: str) -> str:
     return node.resolve_topic_name(namespace.rstrip('/') + '/' + topic)
 
 
+def handoff_publisher(node: Node) -> ReliablePublisher:
+    """The node's /mlkm/handoff publisher: KEEP_LAST for late joiners, flow-controlled below
+    that depth so that a reader that falls behind loses nothing (``qos.HANDOFF_READER_QOS``)."""
+    return ReliablePublisher(
+        node.create_publisher(TrackHandoff, qos.HANDOFF_TOPIC, qos.HANDOFF_QOS),
+        node.context,
+        window=qos.HANDOFF_FLOW_WINDOW,
+    )
+
+
 class ShardLink:
     """The node's shard side: the region of each layout and the hand-off topic."""
 
@@ -88,9 +99,9 @@ class ShardLink:
         self.role: ShardRole | None = None
         self._node = node
         self._take: Callable[[list, float], None] | None = None
-        self._pub = node.create_publisher(TrackHandoff, qos.HANDOFF_TOPIC, qos.HANDOFF_QOS)
+        self._pub = handoff_publisher(node)
         self._sub = node.create_subscription(
-            TrackHandoff, qos.HANDOFF_TOPIC, self._on_handoff, qos.HANDOFF_QOS
+            TrackHandoff, qos.HANDOFF_TOPIC, self._on_handoff, qos.HANDOFF_READER_QOS
         )
         self._upstream_run = 0
         self._early: list[tuple[list, float]] = []  # offers before the tracker had a road

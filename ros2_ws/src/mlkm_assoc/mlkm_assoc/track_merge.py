@@ -96,7 +96,7 @@ class TrackMergeNode(Node):
             for k in range(self._count)
         ]
         self._handoff_sub = self.create_subscription(
-            TrackHandoff, qos.HANDOFF_TOPIC, self._on_handoff, qos.HANDOFF_QOS
+            TrackHandoff, qos.HANDOFF_TOPIC, self._on_handoff, qos.HANDOFF_READER_QOS
         )
         self._timer = self.create_timer(p['diagnostics_period'], self._publish_diagnostics)
         self.get_logger().info(

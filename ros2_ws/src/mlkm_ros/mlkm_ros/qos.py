@@ -87,6 +87,17 @@ MARKERS_QOS = _keep_last(1, DurabilityPolicy.TRANSIENT_LOCAL)
 #: shard: a shard that restarts takes up the offers it missed.
 HANDOFF_HISTORY_DEPTH = 1000
 HANDOFF_QOS = _keep_last(HANDOFF_HISTORY_DEPTH, DurabilityPolicy.TRANSIENT_LOCAL)
+#: The hand-off's readers keep every message (KEEP_ALL): a KEEP_LAST reader whose executor
+#: falls behind keeps only the newest ``depth`` and acknowledges the rest as delivered. The
+#: writer publishes through ``mlkm_ros.publishing.ReliablePublisher`` with a flow-control
+#: window of HANDOFF_FLOW_WINDOW (below the depth), so that it never overwrites a message a
+#: reader has not acknowledged; a late joiner still gets the last HANDOFF_HISTORY_DEPTH.
+HANDOFF_READER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+HANDOFF_FLOW_WINDOW = HANDOFF_HISTORY_DEPTH // 2
 
 #: /tf_static: reliable, transient_local, depth 1 (what tf2's static broadcasters offer).
 TF_STATIC_QOS = _keep_last(1, DurabilityPolicy.TRANSIENT_LOCAL)

@@ -161,7 +161,9 @@ def run_rate(domain_id: int, log_dir: Path, files: dict, count: int, rate: float
     values: dict[str, dict] = {}
     clock = HandoffClock()
     collector = ScoreCollector(domain_id, diagnostics=True)
-    collector.node.create_subscription(TrackHandoff, qos.HANDOFF_TOPIC, clock, qos.HANDOFF_QOS)
+    collector.node.create_subscription(
+        TrackHandoff, qos.HANDOFF_TOPIC, clock, qos.HANDOFF_READER_QOS
+    )
     cpu0: dict[str, float] = {}
     try:
         with Graph(domain_id, log_dir, echo=False) as graph:
