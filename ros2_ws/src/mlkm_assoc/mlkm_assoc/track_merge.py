@@ -27,7 +27,7 @@ from mlkm_ros import lifecycle, qos
 from mlkm_ros.handoff_conversions import handoff_from_msg, stream_rows_from_msg
 from mlkm_ros.held_publisher import HeldPublisher
 from mlkm_ros.params import ParamSpec, declare_parameters, positive
-from mlkm_ros.publishing import ReliablePublisher
+from mlkm_ros.publishing import PublishTimeout, ReliablePublisher
 from mlkm_ros.track_conversions import stream_tracks_to_msg
 from road_sensor_msgs.msg import TrackArray, TrackHandoff
 
@@ -143,17 +143,21 @@ class TrackMergeNode(Node):
         if not out and out.committed_until <= self._last_until:
             return
         until = out.committed_until
-        self._pub.publish(
-            stream_tracks_to_msg(
-                method=self._method,
-                tracks=out.tracks,
-                unassigned=out.unassigned,
-                committed_until_ns=round(until * conv.NS_PER_S) if math.isfinite(until) else 0,
-                solve_time=0.0,
-                stamp_ns=self.get_clock().now().nanoseconds,
-                run=self._run,
-            )
+        msg = stream_tracks_to_msg(
+            method=self._method,
+            tracks=out.tracks,
+            unassigned=out.unassigned,
+            committed_until_ns=round(until * conv.NS_PER_S) if math.isfinite(until) else 0,
+            solve_time=0.0,
+            stamp_ns=self.get_clock().now().nanoseconds,
+            run=self._run,
         )
+        try:
+            self._pub.publish(msg)
+        except PublishTimeout as exc:  # a subscriber alive but stuck for the whole deadline
+            self._counts['publish_timeouts'] += 1  # the tracks of that TrackArray are lost
+            self.get_logger().error(f'merged tracks not published: {exc}')
+            return
         self._last_until = until
         self._counts['published'] += 1
         self._counts['tracks_published'] += len(out.tracks)
@@ -170,12 +174,19 @@ class TrackMergeNode(Node):
         values['committed_until'] = f'{until:.3f}' if math.isfinite(until) else 'none'
         values['tracks_held'] = self._pub.held
         rejected = any(k.startswith('rejected_') for k in values)
+        if rejected:
+            message = 'inputs rejected'
+        elif 'publish_timeouts' in values:
+            message = 'merged tracks lost: a subscriber acknowledged nothing for the deadline'
+        else:
+            message = 'merging'
+        warn = message != 'merging'
         self._diag_pub.publish(
             conv.diagnostics_to_msg(
                 name=self.get_fully_qualified_name(),
                 hardware_id='mlkm_assoc',
-                level=(DiagnosticStatus.WARN if rejected else DiagnosticStatus.OK)[0],
-                message='inputs rejected' if rejected else 'merging',
+                level=(DiagnosticStatus.WARN if warn else DiagnosticStatus.OK)[0],
+                message=message,
                 values=values,
                 stamp_ns=self.get_clock().now().nanoseconds,
             )
