@@ -48,11 +48,10 @@ from mlkm_core.network_assoc.stations import (
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle, qos
 from mlkm_ros.endpoints import PublisherCheck, no_events
-from mlkm_ros.held_publisher import HeldPublisher
 from mlkm_ros.network_conversions import is_network_msg, msg_to_network
 from mlkm_ros.params import ParameterError, declare_parameters
-from mlkm_ros.publishing import ReliablePublisher
-from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout, TrackArray
+from mlkm_ros.publishing import tracks_publisher
+from road_sensor_msgs.msg import Detection, EpisodeInfo, SensorLayout
 
 DETECTION_TYPE = 'road_sensor_msgs/msg/Detection'
 NS_PER_S = conv.NS_PER_S
@@ -108,16 +107,7 @@ class AssociationNode(Node):
             + re.escape(source_topic(self, self._source_ns, qos.DETECTIONS_PREFIX))
             + r'/([^/]+)/detections$'
         )
-        # a slow track subscriber slows the publishing thread down (ReliablePublisher), it
-        # never makes a TrackArray fail and get lost
-        self._tracks_reliable = ReliablePublisher(
-            self.create_publisher(TrackArray, qos.TRACKS_TOPIC, qos.TRACKS_QOS), self.context
-        )
-        self._tracks_pub = HeldPublisher(
-            self._tracks_reliable,
-            wait_for_track_subscribers,
-            self._on_tracks_held,
-        )
+        self._tracks_pub = tracks_publisher(self, wait_for_track_subscribers, self._on_tracks_held)
         self._diag_pub = self.create_publisher(
             DiagnosticArray, qos.DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS_QOS
         )
@@ -375,8 +365,8 @@ class AssociationNode(Node):
             self._shards.diagnostics(values)
         values['tracks_held'] = self._tracks_pub.held
         # how long the track subscribers made the node wait [s], refused publishes retried
-        values['tracks_publish_waited'] = round(self._tracks_reliable.waited, 3)
-        values['tracks_publish_retries'] = self._tracks_reliable.retries
+        values['tracks_publish_waited'] = round(self._tracks_pub.publisher.waited, 3)
+        values['tracks_publish_retries'] = self._tracks_pub.publisher.retries
         return values
 
     def diagnostics_level(self, values: dict[str, object], now: float) -> tuple[int, str]:

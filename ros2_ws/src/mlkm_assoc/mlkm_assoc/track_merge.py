@@ -25,9 +25,8 @@ from mlkm_core.shards.regions import MAX_SHARDS
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle, qos
 from mlkm_ros.handoff_conversions import handoff_from_msg, stream_rows_from_msg
-from mlkm_ros.held_publisher import HeldPublisher
 from mlkm_ros.params import ParamSpec, declare_parameters, positive
-from mlkm_ros.publishing import PublishTimeout, ReliablePublisher
+from mlkm_ros.publishing import PublishTimeout, tracks_publisher
 from mlkm_ros.track_conversions import stream_tracks_to_msg
 from road_sensor_msgs.msg import TrackArray, TrackHandoff
 
@@ -76,12 +75,7 @@ class TrackMergeNode(Node):
         self._counts: Counter = Counter()
         self._last_until = -math.inf  # committed_until last published [s]
         # a slow subscriber holds the merge back (and through it the shards), nothing is lost
-        self._pub = HeldPublisher(
-            ReliablePublisher(
-                self.create_publisher(TrackArray, qos.TRACKS_TOPIC, qos.TRACKS_QOS), self.context
-            ),
-            p['wait_for_track_subscribers'],
-        )
+        self._pub = tracks_publisher(self, p['wait_for_track_subscribers'])
         self._diag_pub = self.create_publisher(
             DiagnosticArray, qos.DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS_QOS
         )

@@ -38,6 +38,11 @@ class HeldPublisher:
         self._held: list[Any] | None = [] if least > 0 else None
 
     @property
+    def publisher(self) -> Any:
+        """The publisher the messages go through."""
+        return self._publisher
+
+    @property
     def least(self) -> int:
         """Subscribers awaited before the first message goes out."""
         return self._least

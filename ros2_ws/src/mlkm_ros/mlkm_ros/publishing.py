@@ -28,7 +28,10 @@ from typing import Any
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.context import Context
 from rclpy.duration import Duration
+from rclpy.node import Node
 from rclpy.publisher import Publisher
+
+from mlkm_ros.held_publisher import HeldPublisher
 
 #: Messages published without a confirmed acknowledgement before the publisher waits for one.
 #: Well below Fast DDS's KEEP_ALL history limit (5000 samples), so that the writer never fills
@@ -174,6 +177,20 @@ class ReliablePublisher:
             'window_waits': self.window_waits,
             'waited': round(self.waited, 3),
         }
+
+
+def tracks_publisher(
+    node: Node, least: int, on_hold: Callable[[int, int], None] | None = None
+) -> HeldPublisher:
+    """The node's /mlkm/tracks publisher: held until ``least`` subscribers matched
+    (:class:`~mlkm_ros.held_publisher.HeldPublisher`), then reliable (a subscriber that falls
+    behind slows the publishing thread down, it never makes a TrackArray fail and get lost);
+    ``.publisher`` is the :class:`ReliablePublisher` with its counters."""
+    from mlkm_ros import qos
+    from road_sensor_msgs.msg import TrackArray
+
+    writer = node.create_publisher(TrackArray, qos.TRACKS_TOPIC, qos.TRACKS_QOS)
+    return HeldPublisher(ReliablePublisher(writer, node.context), least, on_hold)
 
 
 def wait_all_acked(publishers: list[ReliablePublisher], timeout: float) -> bool:
