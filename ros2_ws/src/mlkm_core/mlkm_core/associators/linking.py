@@ -246,6 +246,49 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
     return out
 
 
+def fragment_pairs(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams):
+    """The candidate joins of ``join_fragments``: None without a valid label, else (ends,
+    starts, rows, cols, weight, within): the last detections of the tracks (two detections
+    or more) that end where they could not leave, the first of those that start where they
+    could not enter, and per gated pair (an end ``ends[rows]``, a start ``starts[cols]``
+    within ``max_skip + 1`` sensors downstream) the weight of the join against the two ends'
+    costs (0 outside the pass's gate) and whether it is ``within`` that gate."""
+    valid = np.flatnonzero(labels >= 0)
+    if valid.size == 0:
+        return None
+    n_s = layout.n_sensors
+    order, head, tail = _track_bounds(d, labels, valid)
+    ends, starts = order[tail & ~head], order[head & ~tail]
+    death = params.misses_after(d.sensor_index[ends], n_s)
+    ends, death = ends[death > 0], death[death > 0]
+    birth = params.misses_before(d.sensor_index[starts])
+    starts, birth = starts[birth > 0], birth[birth > 0] + params.new_cost
+    rows, cols, weight, within = [_NONE], [_NONE], [np.zeros(0)], [np.zeros(0, bool)]
+    pos = layout.positions
+    sa, sb = d.sensor_index[ends], d.sensor_index[starts]
+    m = LinkModel(params)
+    m.grow(ends.size)
+    m.start(np.arange(ends.size), pos[sa], d.stamp[ends], 1.0 / d.velocity[ends], ends)
+    for skip in range(params.max_skip + 1 if starts.size and ends.size else 0):
+        i = np.flatnonzero(sa + 1 + skip < n_s)
+        pred = m.predict(i, pos[sa[i] + 1 + skip])
+        r, c = gate_pairs(*m.gate_window(pred), d.stamp[starts])
+        keep = sb[c] == sa[i[r]] + 1 + skip
+        r, c = r[keep], c[keep]
+        if r.size == 0:
+            continue
+        nll, d2 = m.cost(pred.take(r), d.stamp[starts[c]], 1.0 / d.velocity[starts[c]], starts[c])
+        w = nll + skip * params.miss_cost - death[i[r]] - birth[c]
+        rows.append(i[r])
+        cols.append(c)
+        within.append(d2 <= params.gate)
+        weight.append(np.where(within[-1], w, 0.0))
+    return ends, starts, *(np.concatenate(a) for a in (rows, cols, weight, within))
+
+
+_NONE = np.zeros(0, np.int64)
+
+
 def join_fragments(
     layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
 ) -> np.ndarray:
@@ -267,42 +310,13 @@ def join_fragments(
     is its latest detection and its start its earliest. Returns new labels.
     """
     out = labels.copy()
-    valid = np.flatnonzero(out >= 0)
-    if valid.size == 0:
+    pairs = fragment_pairs(layout, d, out, params)
+    if pairs is None:
         return out
-    n_s = layout.n_sensors
-    order, head, tail = _track_bounds(d, out, valid)
-    ends, starts = order[tail & ~head], order[head & ~tail]
-    death = params.misses_after(d.sensor_index[ends], n_s)
-    ends, death = ends[death > 0], death[death > 0]
-    birth = params.misses_before(d.sensor_index[starts])
-    starts, birth = starts[birth > 0], birth[birth > 0] + params.new_cost
-    if ends.size == 0 or starts.size == 0:
+    ends, starts, rows, cols, weight, _ = pairs
+    if rows.size == 0:
         return out
-    pos = layout.positions
-    sa, sb = d.sensor_index[ends], d.sensor_index[starts]
-    m = LinkModel(params)
-    m.grow(ends.size)
-    m.start(np.arange(ends.size), pos[sa], d.stamp[ends], 1.0 / d.velocity[ends], ends)
-    rows, cols, weight = [], [], []
-    for skip in range(params.max_skip + 1):
-        i = np.flatnonzero(sa + 1 + skip < n_s)
-        pred = m.predict(i, pos[sa[i] + 1 + skip])
-        r, c = gate_pairs(*m.gate_window(pred), d.stamp[starts])
-        keep = sb[c] == sa[i[r]] + 1 + skip
-        r, c = r[keep], c[keep]
-        if r.size == 0:
-            continue
-        nll, d2 = m.cost(pred.take(r), d.stamp[starts[c]], 1.0 / d.velocity[starts[c]], starts[c])
-        w = nll + skip * params.miss_cost - death[i[r]] - birth[c]
-        rows.append(i[r])
-        cols.append(c)
-        weight.append(np.where(d2 <= params.gate, w, 0.0))
-    if not rows:
-        return out
-    mr, mc = match_sparse(
-        np.concatenate(rows), np.concatenate(cols), np.concatenate(weight), ends.size, starts.size
-    )
+    mr, mc = match_sparse(rows, cols, weight, ends.size, starts.size)
     mapping = np.arange(int(out.max()) + 1)
     mapping[out[starts[mc]]] = out[ends[mr]]
     for _ in range(mr.size):  # a chain of joins takes the label of its first fragment
@@ -310,6 +324,7 @@ def join_fragments(
         if np.array_equal(nxt, mapping):
             break
         mapping = nxt
+    valid = out >= 0
     out[valid] = mapping[out[valid]]
     return out
 
