@@ -21,6 +21,7 @@ from scipy.optimize import nnls
 
 from mlkm_core.associators.count_curves import beside, with_count_curves
 from mlkm_core.associators.delays import estimate_delay, estimate_gap_spread, gap_links
+from mlkm_core.associators.entries import estimate_entries
 from mlkm_core.associators.laneorder import restore_order
 from mlkm_core.associators.likelihood import sequence_nll, track_sequences
 from mlkm_core.associators.linking import link, relabel
@@ -423,7 +424,12 @@ def _estimate_from(
     tracks = relabel(repaired(layout, d, link(layout, d, p, 'pairwise'), p))
     penalty = 2 * penalty_of(int((tracks >= 0).sum()))
     fitted = fit_pairwise(layout, d, tracks, p, FIT_BOUNDS, FIT_FACTORS, JUMP_GRID, penalty)
-    return own_fit(layout, d, tracks, p, fitted)
+    p = own_fit(layout, d, tracks, p, fitted)
+    if not whole_passages:
+        return p  # a stream window's tracks begin and end at its edges, not where they enter
+    # where tracks begin and end mid-road without a partner a break would leave (``entries``)
+    on_road = estimate_entries(layout, d, tracks, replace(p, open_road=openings))
+    return replace(on_road, open_road=p.open_road)
 
 
 def _refine_cues(

@@ -85,6 +85,12 @@ class MotionParams:
     open_road: tuple[np.ndarray, np.ndarray] | None = field(
         default=None, compare=False, repr=False
     )
+    # per sensor, the share of the tracks passing it that begin there / end there although
+    # the road declares no entry / exit (vehicles observed only over part of the road:
+    # ``associators.entries``); None: a track first or last seen mid-road has missed the
+    # sensors before / after it
+    entry_rate: np.ndarray | None = field(default=None, compare=False, repr=False)
+    exit_rate: np.ndarray | None = field(default=None, compare=False, repr=False)
     # extra travel time of the gaps between consecutive sensors that the speeds measured at
     # their ends do not show (road works, a queue between two sensors); None: none
     delay: GapDelays | None = field(default=None, compare=False, repr=False)
@@ -167,7 +173,8 @@ class MotionParams:
         most ``max_skip + 1``: targets enter the road before its first sensor.
         """
         opened = 0 if self.open_road is None else self.open_road[0][first]
-        return np.minimum(first - opened, self.max_skip + 1) * self.miss_cost
+        missed = np.minimum(first - opened, self.max_skip + 1) * self.miss_cost
+        return _or_begun(missed, self.entry_rate, first)
 
     def misses_after(self, last: np.ndarray, n_sensors: int) -> np.ndarray:
         """Miss cost of the sensors a track seen last at sensor ``last`` will pass unseen.
@@ -176,11 +183,23 @@ class MotionParams:
         at most ``END_MISSES``.
         """
         closed = n_sensors - 1 if self.open_road is None else self.open_road[1][last]
-        return np.minimum(closed - last, END_MISSES) * self.miss_cost
+        missed = np.minimum(closed - last, END_MISSES) * self.miss_cost
+        return _or_begun(missed, self.exit_rate, last)
 
     @property
     def new_cost(self) -> float:
         return -math.log(self.clutter_density)
+
+
+def _or_begun(missed: np.ndarray, rate: np.ndarray | None, sensor: np.ndarray) -> np.ndarray:
+    """Cost [nats] of a track's first (last) detection at ``sensor``: it missed the sensors
+    before (after) it, at ``missed`` nats, or it began (ended) there, at the estimated
+    ``rate`` of the sensor; -log of the sum of both probabilities, 0 where nothing was
+    missed."""
+    if rate is None:
+        return missed
+    begun = -np.log(np.minimum(rate[sensor] + np.exp(-missed), 1.0))
+    return np.where(missed > 0, begun, missed)
 
 
 @dataclass(frozen=True)
