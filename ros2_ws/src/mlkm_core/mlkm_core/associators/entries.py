@@ -32,7 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from mlkm_core.associators.linking import fragment_pairs, relabel
+from mlkm_core.associators.linking import fragment_pairs, relabel, track_bounds
 from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Detections, Layout
 
@@ -45,21 +45,13 @@ MIN_EXCESS = 3
 
 def _passing(layout: Layout, d: Detections, labels: np.ndarray) -> np.ndarray:
     """Per sensor, how many tracks of two detections or more pass it (first to last)."""
+    change = np.zeros(layout.n_sensors + 1)
     valid = np.flatnonzero(labels >= 0)
-    n_s = layout.n_sensors
-    if valid.size == 0:
-        return np.zeros(n_s)
-    lab, s = labels[valid], d.sensor_index[valid]
-    ids, inverse, counts = np.unique(lab, return_inverse=True, return_counts=True)
-    first = np.full(ids.size, n_s, np.int64)
-    last = np.full(ids.size, -1, np.int64)
-    np.minimum.at(first, inverse, s)
-    np.maximum.at(last, inverse, s)
-    keep = counts >= 2
-    change = np.zeros(n_s + 1)
-    np.add.at(change, first[keep], 1.0)
-    np.add.at(change, last[keep] + 1, -1.0)
-    return np.cumsum(change)[:n_s]
+    if valid.size:
+        order, head, tail = track_bounds(d, labels, valid)
+        np.add.at(change, d.sensor_index[order[head & ~tail]], 1.0)
+        np.add.at(change, d.sensor_index[order[tail & ~head]] + 1, -1.0)
+    return np.cumsum(change)[:-1]
 
 
 def estimate_entries(

@@ -169,7 +169,7 @@ def link(
     return labels
 
 
-def _track_bounds(
+def track_bounds(
     d: Detections, labels: np.ndarray, valid: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The detections ``valid`` ordered by (track, sensor, stamp), and which of them are the
@@ -208,7 +208,7 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
     valid = np.flatnonzero(out >= 0)
     if valid.size == 0:
         return out
-    order, head, tail = _track_bounds(d, out, valid)
+    order, head, tail = track_bounds(d, out, valid)
     known = d.lane[order] >= 0  # a twin's lane is known: the others need no search
     ends = order[tail & ~head & known]  # last detection of a track with two or more
     starts = order[head & ~tail & known]  # first detection of a track with two or more
@@ -246,6 +246,9 @@ def merge_double_reports(d: Detections, labels: np.ndarray, params: MotionParams
     return out
 
 
+_NONE = np.zeros(0, np.int64)
+
+
 def fragment_pairs(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams):
     """The candidate joins of ``join_fragments``: None without a valid label, else (ends,
     starts, rows, cols, weight, within): the last detections of the tracks (two detections
@@ -257,19 +260,21 @@ def fragment_pairs(layout: Layout, d: Detections, labels: np.ndarray, params: Mo
     if valid.size == 0:
         return None
     n_s = layout.n_sensors
-    order, head, tail = _track_bounds(d, labels, valid)
+    order, head, tail = track_bounds(d, labels, valid)
     ends, starts = order[tail & ~head], order[head & ~tail]
     death = params.misses_after(d.sensor_index[ends], n_s)
     ends, death = ends[death > 0], death[death > 0]
     birth = params.misses_before(d.sensor_index[starts])
     starts, birth = starts[birth > 0], birth[birth > 0] + params.new_cost
     rows, cols, weight, within = [_NONE], [_NONE], [np.zeros(0)], [np.zeros(0, bool)]
+    if ends.size == 0 or starts.size == 0:
+        return ends, starts, *(a[0] for a in (rows, cols, weight, within))
     pos = layout.positions
     sa, sb = d.sensor_index[ends], d.sensor_index[starts]
     m = LinkModel(params)
     m.grow(ends.size)
     m.start(np.arange(ends.size), pos[sa], d.stamp[ends], 1.0 / d.velocity[ends], ends)
-    for skip in range(params.max_skip + 1 if starts.size and ends.size else 0):
+    for skip in range(params.max_skip + 1):
         i = np.flatnonzero(sa + 1 + skip < n_s)
         pred = m.predict(i, pos[sa[i] + 1 + skip])
         r, c = gate_pairs(*m.gate_window(pred), d.stamp[starts])
@@ -284,9 +289,6 @@ def fragment_pairs(layout: Layout, d: Detections, labels: np.ndarray, params: Mo
         within.append(d2 <= params.gate)
         weight.append(np.where(within[-1], w, 0.0))
     return ends, starts, *(np.concatenate(a) for a in (rows, cols, weight, within))
-
-
-_NONE = np.zeros(0, np.int64)
 
 
 def join_fragments(
