@@ -8,13 +8,18 @@ sqrt(2) sigma_l, so that discrete lengths get their frequency). Cost
 -log((1 - eps) N / p_pop + eps) <= -log eps; an unknown length (NaN) costs nothing.
 
 ``fit`` estimates sigma_l and eps from the links of a pass (a robust scale of the length
-differences; eps from those beyond 5 standard deviations).
+differences; eps from those beyond 5 standard deviations). Where most links join equal lengths
+(the MAD is 0: lengths reported exactly, to their resolution, as trajectories and simulators
+give them), sigma_l is the Gaussian noise whose differences reach half a resolution step as
+often as the links' lengths differ by about one step (``exact_noise``): one step apart is then
+a different vehicle.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 
@@ -22,7 +27,7 @@ from mlkm_core.model.cues import Cue, CueKind, CueTracks
 from mlkm_core.types import Detections, Layout, link_pairs
 
 #: floor of the length noise [m] (lengths may be reported exactly)
-FLOOR_LENGTH = 0.05
+FLOOR_LENGTH = 0.001
 #: bounds of the fraction of length outliers
 OUTLIER_BOUNDS = (1e-3, 0.05)
 #: lengths used for the population density
@@ -145,10 +150,34 @@ def fit_links(
         if dl.size >= 10:
             # robust scale of the difference of two measurements: MAD / 0.6745 / sqrt(2)
             mad = float(np.median(np.abs(dl - np.median(dl))))
-            noise = max(mad / 0.6745 / math.sqrt(2), FLOOR_LENGTH)
+            if mad > 0:
+                noise = max(mad / 0.6745 / math.sqrt(2), FLOOR_LENGTH)
+            else:
+                noise = exact_noise(d.length, dl)
             far = np.abs(dl) > 5 * math.sqrt(2) * noise
             outlier = float(np.clip(far.mean(), *OUTLIER_BOUNDS))
     return LengthParams(noise, outlier)
+
+
+def resolution(length: np.ndarray) -> float:
+    """The smallest step between the distinct known lengths [m] (at least ``FLOOR_LENGTH``):
+    the reporting resolution, or the spacing of the length classes where there are few."""
+    v = np.unique(length[np.isfinite(length)])
+    steps = np.diff(v)
+    return max(float(steps.min()) if steps.size else 0.0, FLOOR_LENGTH)
+
+
+def exact_noise(length: np.ndarray, dl: np.ndarray) -> float:
+    """sigma_l [m] where the links' length differences ``dl`` are mostly exactly 0: the noise
+    whose difference of two measurements exceeds half the resolution step with the frequency f
+    of the differences of about one step (0 < |dl| < 1.5 steps; at least one link's worth),
+    sigma_l = step / (2 sqrt(2) z), z the standard normal quantile of 1 - f / 2. Larger
+    differences are not noise but the links' outliers."""
+    step = resolution(length)
+    near = int(np.count_nonzero((dl != 0) & (np.abs(dl) < 1.5 * step)))
+    f = max(near, 1) / dl.size
+    z = float(NormalDist().inv_cdf(1.0 - f / 2.0))
+    return max(step / (2.0 * math.sqrt(2.0) * z), FLOOR_LENGTH)
 
 
 KIND = CueKind(
