@@ -97,6 +97,22 @@ def test_the_lag_grows_to_the_travel_times_of_slow_traffic():
         assert track >= 0 and np.all(truth[grown == track] == v)
 
 
+def test_the_first_slow_vehicles_are_held_until_the_lag_is_estimated(monkeypatch):
+    """Before 30 travel times are seen the lag is at least 2 x the longest one: the first
+    slow vehicles, 30 s between stations, are not committed alone after 15 s."""
+    rows, truth = _slow_traffic()
+    held, lag = _stream(rows, 2.0)
+    assert lag == pytest.approx(60.0, abs=1.0)
+    for v in range(VEHICLES):
+        (track,) = set(held[truth == v].tolist())
+        assert track >= 0 and np.all(truth[held == track] == v)
+    # without the hold the lag is 15 s until the 95th percentile is known
+    monkeypatch.setattr(StreamTracker, 'lag', property(lambda self: self._lag))
+    early, _ = _stream(rows, 2.0)
+    assert np.sum(early < 0) > 0
+    assert accuracy(early, truth).accuracy < accuracy(held, truth).accuracy
+
+
 @pytest.mark.slow
 def test_stream_keeps_up_with_batch_on_real_stop_and_go_traffic():
     """NGSIM I-80, five loops 100 m apart (the first placement of ``mlkm bench --only real``):

@@ -82,7 +82,14 @@ class StreamTracker(WindowSnapshots):
     @property
     def lag(self) -> float:
         """The commit lag in force [s]: ``config.lag``, grown with the travel times seen
-        (``StreamConfig.lag_factor``)."""
+        (``StreamConfig.lag_factor``). Until ``MIN_TRAVEL_SAMPLES`` of them are seen the 95th
+        percentile is not yet estimated, and the lag is at least ``lag_factor`` times the
+        longest seen: at the start of a stream of slow traffic a detection is not committed
+        before its vehicle can reach the next station (this early hold is not kept once the
+        percentile is known, so one stopped vehicle among the first does not fix the lag)."""
+        c = self.config
+        if 0 < len(self._travel) < MIN_TRAVEL_SAMPLES and c.lag_factor > 0:
+            return max(self._lag, c.lag_factor * max(self._travel))
         return self._lag
 
     @property
@@ -107,7 +114,7 @@ class StreamTracker(WindowSnapshots):
         out['revision_rate'] = out['revised'] / out['committed'] if out['committed'] else 0.0
         out['uncommitted'] = len(self._pending)
         out['overloaded'] = int(self._overloaded)
-        out['lag'] = self._lag
+        out['lag'] = self.lag
         return out
 
     def push(
