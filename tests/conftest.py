@@ -7,6 +7,9 @@ file re-executes pytest once under ``env.sh`` so that ``.venv/bin/pytest tests/.
 Fixtures
 --------
 ``repo_root``        -> Path of the repository.
+``ngsim_loops``      -> factory ``ngsim_loops(stations, closed) -> Dataset``: virtual loops on
+                        the shipped NGSIM I-80 part A over 400 m from the real bench's first
+                        placement (the trajectories read once per session).
 ``ros_domain_id``    -> int in 1..100, unique per test among all concurrently running test
                         sessions on this machine (an exclusive ``flock`` per id, released at
                         teardown or when the process dies).
@@ -129,6 +132,23 @@ def _children(pid: int) -> list[int]:
 @pytest.fixture(scope='session')
 def repo_root() -> Path:
     return REPO_ROOT
+
+
+@pytest.fixture(scope='session')
+def ngsim_loops(repo_root):
+    import numpy as np
+
+    from mlkm_core.loops import even_positions, virtual_loops
+    from mlkm_core.trajectories import read_trajectories
+
+    traj = read_trajectories(repo_root / 'data' / 'ngsim_i80' / 'i80_trajectories_a.csv.gz')
+    # the first station of the real bench's first placement (``bench.real.placement(1)``)
+    x0 = float(np.random.default_rng(1).uniform(20.0, 100.0))
+
+    def loops(stations: int, closed: bool):
+        return virtual_loops(traj, even_positions(stations, x0, x0 + 400.0), closed).dataset
+
+    return loops
 
 
 @pytest.fixture

@@ -66,16 +66,11 @@ def test_an_exchange_that_makes_neighbours_cross_is_priced_and_one_that_mends_th
     assert _swaps(moved, M, ca, cb, np.array([0, 0])).tolist() == [-1, 0]
 
 
-def test_multiframe_keeps_the_order_of_a_lane_on_real_traffic(repo_root, monkeypatch) -> None:
+def test_multiframe_keeps_the_order_of_a_lane_on_real_traffic(ngsim_loops, monkeypatch) -> None:
     """NGSIM I-80, five loops 100 m apart from 60.9 m (the real bench's first placement),
     lane and length: two cars of 3.9 m, 2 s apart in lane 0, whose tails the search exchanged
     at the fourth loop (their speeds fit either way). Priced, every vehicle is one track."""
-    from mlkm_core.loops import even_positions, virtual_loops
-    from mlkm_core.trajectories import read_trajectories
-
-    traj = read_trajectories(repo_root / 'data' / 'ngsim_i80' / 'i80_trajectories_a.csv.gz')
-    x0 = float(np.random.default_rng(1).uniform(20.0, 100.0))
-    ds = virtual_loops(traj, even_positions(5, x0, x0 + 400.0), True).dataset
+    ds = ngsim_loops(5, True)
     d = ds.detections
 
     def found() -> float:

@@ -65,17 +65,12 @@ def test_one_step_apart_is_another_vehicle_under_the_exact_fit():
     assert _step_price(length.LengthParams(0.05, fit.length_outlier)) < 0.5
 
 
-def test_a_length_step_tells_two_cars_apart_on_real_traffic(repo_root, monkeypatch):
+def test_a_length_step_tells_two_cars_apart_on_real_traffic(ngsim_loops, monkeypatch):
     """NGSIM I-80, five open loops 100 m apart from the real bench's first placement, lane and
     length: a car of 4.08 m that is first seen at the second loop, 1.6 s ahead of two cars of
     4.05 m in its lane. Under a 5 cm noise the tracks take it for the first of those and leave
     the second's tail to begin a track; under the fitted noise every vehicle is its own track."""
-    from mlkm_core.loops import even_positions, virtual_loops
-    from mlkm_core.trajectories import read_trajectories
-
-    traj = read_trajectories(repo_root / 'data' / 'ngsim_i80' / 'i80_trajectories_a.csv.gz')
-    x0 = float(np.random.default_rng(1).uniform(20.0, 100.0))
-    ds = virtual_loops(traj, even_positions(5, x0, x0 + 400.0), False).dataset
+    ds = ngsim_loops(5, False)
     d = ds.detections
 
     def found() -> float:
