@@ -109,6 +109,28 @@ def test_no_link_beyond_the_gate_however_dear_the_break():
     np.testing.assert_array_equal(join_fragments(LAYOUT, d, raw, dear), raw)
 
 
+def test_a_car_unseen_over_more_sensors_than_the_pass_carries_is_one_track():
+    # constant speed, unseen at sensors 3 to 6: four sensors in a row, one more than the
+    # forward pass carries a track (max_skip 3), so the pass leaves two tracks
+    whole = car([20.0] * 10)
+    seen = np.r_[0:3, 7:10]
+    d = Detections(
+        whole.sensor_index[seen], whole.stamp[seen], whole.velocity[seen], whole.target[seen]
+    )
+    assert PARAMS.max_skip == 3
+    raw = link(LAYOUT, d, PARAMS)
+    np.testing.assert_array_equal(raw, [0] * 3 + [1] * 3)
+    # joined: a perfect link plus four misses (9.2 nats) against seven missed after the end
+    # (16.1), a new track and four missed before the start (9.2 + 2.3)
+    nll, _ = link_cost(whole, 2, 7, PARAMS)
+    broken = break_costs(PARAMS, 2, 7)[1]
+    assert nll + 4 * PARAMS.miss_cost < broken
+    np.testing.assert_array_equal(join_fragments(LAYOUT, d, raw, PARAMS), [0] * 6)
+    for method in ('assignment', 'multiframe', 'mlkm_robust'):
+        labels = make_associator(method).associate(LAYOUT, d, 1, motion=PARAMS)
+        assert len(set(labels.tolist())) == 1, method
+
+
 def test_three_fragments_take_the_label_of_the_first():
     # speeds up after sensor 2 and slows down again after sensor 6
     d = car([20.0] * 3 + [24.5] * 4 + [20.0] * 3)
