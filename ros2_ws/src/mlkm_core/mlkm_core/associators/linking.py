@@ -315,8 +315,9 @@ def join_fragments(
     vehicles seen where they were observed, 20 loops, one vehicle is unseen at four loops in
     a row). A link is scored as the pairwise pass scores it (motion model, lane and length,
     the pass's gate) plus a miss per sensor skipped, against the two ends' costs. ``labels``
-    are raw track ids (-1 allowed) and may hold two reports of a vehicle at one sensor (``merge_double_reports``); a track's end
-    is its latest detection and its start its earliest. Returns new labels.
+    are raw track ids (-1 allowed) and may hold two reports of a vehicle at one sensor
+    (``merge_double_reports``); a track's end is its latest detection and its start its
+    earliest. Returns new labels.
     """
     out = labels.copy()
     pairs = fragment_pairs(layout, d, out, params)
