@@ -257,8 +257,8 @@ def fragment_pairs(layout: Layout, d: Detections, labels: np.ndarray, params: Mo
     starts, rows, cols, weight, within): the last detections of the tracks (two detections
     or more) that end where they could not leave, the first of those that start where they
     could not enter, and per gated pair (an end ``ends[rows]``, a start ``starts[cols]``
-    anywhere downstream) the weight of the join against the two ends'
-    costs (0 outside the pass's gate) and whether it is ``within`` that gate."""
+    anywhere downstream) the weight of the join against the two ends' costs (0 outside the
+    pass's gate) and whether it is ``within`` that gate."""
     valid = np.flatnonzero(labels >= 0)
     if valid.size == 0:
         return None
@@ -277,10 +277,8 @@ def fragment_pairs(layout: Layout, d: Detections, labels: np.ndarray, params: Mo
     m = LinkModel(params)
     m.grow(ends.size)
     m.start(np.arange(ends.size), pos[sa], d.stamp[ends], 1.0 / d.velocity[ends], ends)
-    for skip in range(n_s - 1):
+    for skip in range(n_s - 1 - int(sa.min())):  # to the last sensor
         i = np.flatnonzero(sa + 1 + skip < n_s)
-        if i.size == 0:
-            break
         pred = m.predict(i, pos[sa[i] + 1 + skip])
         r, c = gate_pairs(*m.gate_window(pred), d.stamp[starts])
         keep = sb[c] == sa[i[r]] + 1 + skip
