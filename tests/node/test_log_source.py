@@ -116,9 +116,11 @@ def run_source(context, listener, spin_until, log: Path, layout: Path, *more: Pa
         with_truth = node._replay.target is not None
         assert spin_until(
             listener.executor,
-            lambda: len(listener.detections) >= n
-            and len(listener.truth) >= n * with_truth
-            and listener.layout,
+            lambda: (
+                len(listener.detections) >= n
+                and len(listener.truth) >= n * with_truth
+                and listener.layout
+            ),
             30.0,
         )
         spin_until(listener.executor, lambda: False, 0.3)  # anything extra would show now
