@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mlkm_core.associators import AssociatorConfig, available_methods, calibration, make_associator
+from mlkm_core.associators import AssociatorConfig, available_methods, kalman_fit, make_associator
 from mlkm_core.associators.base import DegradedResultWarning, canonical_order
 from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.associators.linking import link, merge_double_reports, relabel
@@ -284,7 +284,7 @@ def test_cruise_speed_drift_is_fitted_where_it_happens_and_off_where_not():
 def test_assignment_gains_from_the_jumps(monkeypatch):
     layout, d = jumpy_traffic(5, jump_prob=0.15, jump_sigma=5.0)
     with_jumps = accuracy(make_associator('assignment').associate(layout, d, 120), d.target)
-    monkeypatch.setattr(calibration, '_fit_jumps', lambda layout, d, seqs, p, bounds: p)
+    monkeypatch.setattr(kalman_fit, '_fit_jumps', lambda layout, d, seqs, p, bounds: p)
     pure_ou = accuracy(make_associator('assignment').associate(layout, d, 120), d.target)
     assert with_jumps.accuracy > 0.98
     assert with_jumps.correct > pure_ou.correct
@@ -306,7 +306,7 @@ def test_the_jumps_are_what_makes_the_kalman_model_fit_jumpy_traffic(monkeypatch
     assert lead() < FIT_MARGIN
     with_jumps = accuracy(make_associator('multiframe').associate(layout, d, 120), d.target)
     assert with_jumps.accuracy > 0.98
-    monkeypatch.setattr(calibration, '_fit_jumps', lambda layout, d, seqs, p, bounds: p)
+    monkeypatch.setattr(kalman_fit, '_fit_jumps', lambda layout, d, seqs, p, bounds: p)
     assert lead() > 5 * FIT_MARGIN
 
 

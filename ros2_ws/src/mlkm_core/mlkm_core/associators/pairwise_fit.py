@@ -1,6 +1,6 @@
 """The pairwise model's parameters, fitted under its own likelihood.
 
-``calibration.fit_motion`` fits the fluctuation and noise parameters (sigma, L, sigma_t,
+``kalman_fit.fit_motion`` fits the fluctuation and noise parameters (sigma, L, sigma_t,
 sigma_v, speed jumps) under the Kalman model's marginal likelihood. That model credits every
 vehicle with a cruise speed it returns to; the pairwise model (``motion.PairwiseModel``: a
 track is its last detection) knows nothing of it, and where traffic has no such persistence

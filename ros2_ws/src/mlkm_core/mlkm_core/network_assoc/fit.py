@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from mlkm_core.associators.calibration import FIT_BOUNDS, FIT_FACTORS, JUMP_GRID, penalty_of
+from mlkm_core.associators.kalman_fit import FIT_BOUNDS, FIT_FACTORS, JUMP_GRID, penalty_of
 from mlkm_core.associators.pairwise_fit import MIN_LINKS, fit_links
 from mlkm_core.model.cues import Cue
 from mlkm_core.model.length import LengthParams, bind_detections
