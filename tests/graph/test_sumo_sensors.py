@@ -189,8 +189,13 @@ def test_episodes_live_equal_offline_cli(
         ended = [i for i in listener.infos if i.status == EpisodeInfo.STATUS_ENDED]
         return sum(sum(i.detection_counts) for i in ended) if len(ended) == EPISODES else -1
 
-    # the scorer's copy of the truth can be complete before the listener's (a loaded machine)
-    spin_until(listener.executor, lambda: len(listener.truth) >= announced() > 0, 30.0)
+    # the scorer's copy of the truth can be complete before the listener's (a loaded machine),
+    # and the latched layout may reach the listener last
+    spin_until(
+        listener.executor,
+        lambda: len(listener.truth) >= announced() > 0 and listener.layout is not None,
+        30.0,
+    )
     live = [(listener.scores[k].correct, listener.scores[k].total) for k in range(EPISODES)]
     assert live == expected
     assert all(listener.scores[k].truth_complete for k in range(EPISODES))
