@@ -27,7 +27,7 @@ from mlkm_core.associators.calibration import estimate_params
 from mlkm_core.metrics import accuracy
 from mlkm_core.model.gap_delays import GapDelays
 from mlkm_core.model.motion import MotionParams
-from mlkm_core.streaming import StreamConfig, StreamTracker
+from mlkm_core.streaming import StreamConfig
 from mlkm_core.streaming.motion import MIN_CALIBRATION
 from mlkm_core.streaming.solve import (
     CarriedModel,
@@ -37,11 +37,11 @@ from mlkm_core.streaming.solve import (
     solve,
 )
 from mlkm_core.trajectories import read_trajectories
-from mlkm_core.types import Dataset
+from mlkm_core.types import Dataset, Detections, Layout
 
 from .bench import real
-from .bench.common import time_speed_only
-from .bench.stream_lag import stream_rows
+from .bench.common import BEST, time_speed_only
+from .bench.stream_lag import stream_labels
 
 
 class GivenDelays(InlineExecutor):
@@ -61,9 +61,8 @@ class GivenDelays(InlineExecutor):
             return solve(problem)  # a carried model holds ``delay`` already
         if not make_associator(problem.method, cfg).calibrates:
             return solve(problem)
-        openings = MotionParams.road_openings(layout.positions, cfg.entries, cfg.exits)
         try:
-            own = estimate_params(layout, d.subset(canonical_order(d)), openings, False)
+            own = fitted(layout, d, cfg, whole_passages=False)
         except ValueError:
             return solve(problem)  # the solve replaces the method for this window
         model = CarriedModel.of(replace(own, delay=self.delay))
@@ -71,25 +70,24 @@ class GivenDelays(InlineExecutor):
         return replace(solution, model=model if len(d) >= MIN_CALIBRATION else None)
 
 
+def fitted(
+    layout: Layout, d: Detections, cfg: AssociatorConfig, whole_passages: bool = True
+) -> MotionParams:
+    """The model a calibrating method fits on ``d`` (``calibration.estimate_params``)."""
+    openings = MotionParams.road_openings(layout.positions, cfg.entries, cfg.exits)
+    return estimate_params(layout, d.subset(canonical_order(d)), openings, whole_passages)
+
+
 def stream_accuracy(ds: Dataset, executor=None) -> float:
-    """Accuracy of the stream tracker (``StreamConfig`` defaults) on ``ds``, pushed in stamp
-    order and flushed."""
-    d = ds.detections
-    tracker = StreamTracker(ds.layout, StreamConfig(), executor=executor)
-    labels = np.full(len(d), -1, np.int64)
-    for row in stream_rows(d):
-        for key, track in tracker.push(*row).committed.tolist():
-            labels[key] = track
-    for key, track in tracker.flush().committed.tolist():
-        labels[key] = track
-    return accuracy(labels, d.target).accuracy
+    """Accuracy of the stream tracker (``StreamConfig`` defaults, ``multiframe``) on ``ds``,
+    pushed in stamp order and flushed."""
+    labels = stream_labels(ds, StreamConfig.lag, BEST, executor)
+    return accuracy(labels, ds.detections.target).accuracy
 
 
 def whole_recording_delay(ds: Dataset) -> GapDelays | None:
     """The gap delays batch fits on the whole of ``ds``."""
-    d, cfg = ds.detections, AssociatorConfig()
-    openings = MotionParams.road_openings(ds.layout.positions, cfg.entries, cfg.exits)
-    return estimate_params(ds.layout, d.subset(canonical_order(d)), openings).delay
+    return fitted(ds.layout, ds.detections, AssociatorConfig()).delay
 
 
 def compare(ds: Dataset) -> tuple[float, float, float]:

@@ -29,13 +29,14 @@ SUMO_CELL = ('highway', 200, 20)
 LAG_LOSS_MAX = 0.5
 
 
-def stream_labels(ds, lag: float, method: str = BEST) -> np.ndarray:
+def stream_labels(ds, lag: float, method: str = BEST, executor=None) -> np.ndarray:
     """Committed track of every detection of ``ds`` (-1 unassigned) after pushing it in stamp
-    order into a stream tracker with commit lag ``lag`` [s] and flushing."""
+    order into a stream tracker with commit lag ``lag`` [s] and flushing (``executor``: the
+    tracker's, where its window solves run)."""
     from mlkm_core.streaming import StreamConfig, StreamTracker
 
     d = ds.detections
-    tracker = StreamTracker(ds.layout, StreamConfig(method=method, lag=lag))
+    tracker = StreamTracker(ds.layout, StreamConfig(method=method, lag=lag), executor=executor)
     n = len(d.stamp)
     labels = np.full(n, -1, np.int64)
     seen = np.zeros(n, bool)
