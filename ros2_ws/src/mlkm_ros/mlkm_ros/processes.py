@@ -12,7 +12,6 @@ mlkm_experiments import it from here). Importing it loads no rclpy: only
 from __future__ import annotations
 
 import fcntl
-import itertools
 import os
 import random
 import signal
@@ -25,10 +24,6 @@ from pathlib import Path
 
 #: Shared with tests/conftest.py: a domain id held by a lock file is in use on this machine.
 LOCK_DIR = Path(os.environ.get('MLKM_DOMAIN_LOCK_DIR', '/tmp/mlkm-ros-domain-locks'))
-
-#: The order in which this process released each domain id it held (a larger one later).
-_RELEASED: dict[int, int] = {}
-_RELEASES = itertools.count(1)
 
 #: Every Proc started by this process and not yet stopped, by process group id.
 _RUNNING: dict[int, Proc] = {}
@@ -56,12 +51,15 @@ def reserve_domain() -> Iterator[int]:
     LOCK_DIR.mkdir(parents=True, exist_ok=True)
     ids = list(range(1, 101))
     random.shuffle(ids)
-    # Ids this process released longest ago first: whatever a finished holder may have left
-    # behind in its domain (a participant that dies slowly) then meets no new holder for a
-    # long time.
-    ids.sort(key=lambda i: _RELEASED.get(i, 0))
+    # Ids released longest ago by anyone on this machine first (a lock file's mtime is its last
+    # release; one never made counts as oldest): whatever a finished holder may have left
+    # behind in its domain (a participant that dies slowly, whose readers a new publisher
+    # still counts as matched) then meets no new holder for a long time, even when the last
+    # holder was another test session or another pytest worker.
+    ids.sort(key=lambda i: _released_at(LOCK_DIR / f'{i}.lock'))
     for domain_id in ids:
-        fd = os.open(LOCK_DIR / f'{domain_id}.lock', os.O_CREAT | os.O_RDWR, 0o666)
+        lock = LOCK_DIR / f'{domain_id}.lock'
+        fd = os.open(lock, os.O_CREAT | os.O_RDWR, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -70,11 +68,19 @@ def reserve_domain() -> Iterator[int]:
         try:
             yield domain_id
         finally:
+            os.utime(fd)  # the release time, for the next holder's choice
             fcntl.flock(fd, fcntl.LOCK_UN)
             os.close(fd)
-            _RELEASED[domain_id] = next(_RELEASES)
         return
     raise RuntimeError('every ROS domain id 1..100 is in use on this machine')
+
+
+def _released_at(lock: Path) -> int:
+    """[ns] the last release of a domain id (its lock file's mtime); 0 if never held."""
+    try:
+        return lock.stat().st_mtime_ns
+    except FileNotFoundError:
+        return 0
 
 
 @contextmanager
