@@ -11,7 +11,7 @@ from mlkm_experiments.bench import network
 
 
 @pytest.mark.slow
-# every network method and the stream on three SUMO networks: 2-5 min on a 2-core machine
+# every network method and the stream on three SUMO networks: 1-3 min on a 2-core machine
 # that two other processes keep busy (the stream solves its windows inside its pushes)
 @pytest.mark.timeout(900)
 def test_one_seed_per_family_end_to_end_through_the_cli(tmp_path):

@@ -8,7 +8,7 @@ the lane follows, ``gmlkm`` uses neither). The speed cell associates one large g
 the network's reach given to it as a hypothesiser) runs on every full cell, once per dataset
 (it uses time and speed only), not in ``--quick`` runs (tens of seconds per dataset). Every
 dataset's draw is written into the JSON, so any cell can be rebuilt from (family, seed). A
-``--quick`` run (a smoke run, not figures) draws one seed per family with 100 vehicles and
+``--quick`` run (a smoke run, not figures) draws one seed per family with 50 vehicles and
 leaves out the speed cell.
 """
 
@@ -27,7 +27,7 @@ SEEDS_FULL = 3
 SEEDS_QUICK = 1
 #: a ``--quick`` run's draws: fewer vehicles than the families' ranges (a smoke run of every
 #: method and the stream, not figures)
-QUICK_OVERRIDES = {'vehicles': 100}
+QUICK_OVERRIDES = {'vehicles': 50}
 VARIANTS = ('time_speed', 'lane_length')
 VARIANT_LABELS = {'time_speed': 'time, speed', 'lane_length': '+ lane, length'}
 #: the baseline every tracking method must beat, and the method of the speed cell
