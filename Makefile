@@ -43,7 +43,7 @@ demo-shards: setup
 	@$(ENV) python scripts/demo_shards.py
 
 test: setup
-	@$(ENV) ruff check . && ruff format --check . && python -m pytest tests
+	@$(ENV) ruff check . && ruff format --check . && python -m pytest -n 2 --dist loadgroup tests
 
 # tests/unit: ROS-free and in-process tests that start no node and no DDS graph (the tiers
 # by path: docs/testing.md); tests marked slow are left to `make test`.

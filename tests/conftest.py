@@ -38,6 +38,13 @@ Fixtures
                         spins ``executor`` in 50 ms steps until ``predicate()`` is true.
 
 Markers (pytest.ini): ``ros`` (starts DDS participants), ``slow``.
+
+Workers: ``make test`` runs two pytest-xdist workers (``-n 2 --dist loadgroup``). The tests
+that start the product's executables as processes (tests/graph, tests/bags, and those marked
+``ros`` in tests/experiments) form one group, run one after another on one worker, while the
+other worker takes the in-process tiers: a graph test shares the machine with one busy core,
+as on any loaded machine, never with another graph of nodes. The domain ids of both workers
+come from one machine-wide pool (``mlkm_ros.processes.reserve_domain``).
 """
 
 from __future__ import annotations
@@ -127,6 +134,19 @@ def _children(pid: int) -> list[int]:
         if int(fields[1]) == pid:
             out.append(int(stat.parent.name))
     return out
+
+
+#: tiers whose tests start the product's executables as separate processes
+_PROCESS_TIERS = ('graph', 'bags')
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The tests that start node processes into one xdist group (see Workers above)."""
+    for item in items:
+        parts = Path(item.path).relative_to(REPO_ROOT / 'tests').parts
+        tier = parts[0] if len(parts) > 1 else ''
+        if tier in _PROCESS_TIERS or (tier == 'experiments' and item.get_closest_marker('ros')):
+            item.add_marker(pytest.mark.xdist_group('processes'))
 
 
 @pytest.fixture(scope='session')
