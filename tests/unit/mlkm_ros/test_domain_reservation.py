@@ -22,11 +22,11 @@ def _pick_in_another_process(lock_dir) -> int:
 
 def test_another_process_gets_the_id_released_longest_ago(tmp_path, monkeypatch) -> None:
     monkeypatch.setattr(processes, 'LOCK_DIR', tmp_path)
-    # every id held and released once, 1 longest ago ... 100 last; then 37 again, last of all
-    for i in [*range(1, 101), 37]:
+    # every id released once, 1 longest ago ... 100 last, and 37 after all of them
+    for i in range(1, 101):
         lock = tmp_path / f'{i}.lock'
         lock.touch()
-        os.utime(lock, ns=(0, (i if i != 37 else 1000) * 1_000_000_000))
+        os.utime(lock, ns=(0, (1000 if i == 37 else i) * 1_000_000_000))
     assert _pick_in_another_process(tmp_path) == 1
     # 1 is now the newest release: the next process takes 2, and 37 comes after 100
     assert _pick_in_another_process(tmp_path) == 2

@@ -58,8 +58,7 @@ def reserve_domain() -> Iterator[int]:
     # holder was another test session or another pytest worker.
     ids.sort(key=lambda i: _released_at(LOCK_DIR / f'{i}.lock'))
     for domain_id in ids:
-        lock = LOCK_DIR / f'{domain_id}.lock'
-        fd = os.open(lock, os.O_CREAT | os.O_RDWR, 0o666)
+        fd = os.open(LOCK_DIR / f'{domain_id}.lock', os.O_CREAT | os.O_RDWR, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
