@@ -11,7 +11,7 @@ import pytest
 
 from mlkm_core.associators import available_methods, make_associator
 from mlkm_core.associators.likelihood import sequence_nll
-from mlkm_core.associators.linking import gate_pairs, match_sparse, relabel
+from mlkm_core.associators.linking import match_sparse, relabel
 from mlkm_core.metrics import accuracy
 from mlkm_core.model.motion import MotionParams
 from mlkm_core.simulator import SimConfig, simulate
@@ -142,13 +142,6 @@ def test_match_sparse_with_dummies_hand_computed():
     # greedy would take (0,0) and then (1,1): -6; optimal is (0,1) + (1,0): -8.5;
     # (2,2) costs more than its dummies (w > 0): track 2 missed, detections 2, 3 unmatched
     assert got == {0: 1, 1: 0}
-
-
-def test_gate_pairs_window():
-    r, c = gate_pairs(
-        np.array([1.0, 5.0]), np.array([0.5, 2.0]), np.array([4.0, 1.2, 9.0, 6.5, 0.6])
-    )
-    assert sorted(zip(r.tolist(), c.tolist(), strict=True)) == [(0, 1), (0, 4), (1, 0), (1, 3)]
 
 
 def test_relabel_prunes_single_detection_tracks():

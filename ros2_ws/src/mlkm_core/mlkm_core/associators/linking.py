@@ -8,8 +8,6 @@
   components (time gating makes them small) and each component is solved exactly with
   ``scipy.optimize.linear_sum_assignment`` on a dense block in which non-edges weigh 0, which
   is the standard "dummy rows and columns" augmentation without building the (n+m)^2 matrix.
-* ``gate_pairs``: candidate pairs from sorted 1-D windows (predicted passage time +- k sigma),
-  O(n log n + pairs) instead of a dense n x m matrix.
 * ``by_sensor``: detections grouped per sensor, sorted by stamp.
 * ``link``: the forward pass. It walks the sensors in road order. At each sensor the active
   tracks (last seen at most ``max_skip`` sensors back) are gated in predicted passage time
@@ -36,6 +34,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from mlkm_core.associators.base import canonical_order
+from mlkm_core.associators.gating import gate_pairs
 from mlkm_core.model.length import LengthParams
 from mlkm_core.model.link import LinkModel
 from mlkm_core.model.motion import MotionParams
@@ -48,24 +47,6 @@ def by_sensor(detections: Detections, n_sensors: int) -> list[np.ndarray]:
     order = canonical_order(detections)
     bounds = np.searchsorted(detections.sensor_index[order], np.arange(n_sensors + 1))
     return [order[bounds[s] : bounds[s + 1]] for s in range(n_sensors)]
-
-
-def gate_pairs(
-    centre: np.ndarray, half_width: np.ndarray, values: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """All (i, j) with |values[j] - centre[i]| <= half_width[i]; ``values`` need not be sorted."""
-    if centre.size == 0 or values.size == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    order = np.argsort(values, kind='stable')
-    sv = values[order]
-    lo = np.searchsorted(sv, centre - half_width, side='left')
-    hi = np.searchsorted(sv, centre + half_width, side='right')
-    counts = np.maximum(hi - lo, 0)
-    total = int(counts.sum())
-    rows = np.repeat(np.arange(centre.size), counts)
-    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
-    cols = order[starts + np.arange(total)]
-    return rows, cols
 
 
 def match_sparse(

@@ -25,7 +25,8 @@ from dataclasses import replace
 import numpy as np
 
 from mlkm_core.associators.delays import link_residuals, robust_location
-from mlkm_core.associators.linking import gate_pairs, match_sparse
+from mlkm_core.associators.gating import gate_pairs
+from mlkm_core.associators.linking import match_sparse
 from mlkm_core.model.link import LinkModel
 from mlkm_core.model.motion import MotionParams
 from mlkm_core.types import Detections, Layout, link_pairs

@@ -33,8 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mlkm_core.associators.gating import gate_pairs
 from mlkm_core.associators.likelihood import sequence_nll, sequence_state
-from mlkm_core.associators.linking import by_sensor, gate_pairs
+from mlkm_core.associators.linking import by_sensor
 from mlkm_core.model.motion import MotionParams, PairwiseModel
 from mlkm_core.types import Detections, Layout
 

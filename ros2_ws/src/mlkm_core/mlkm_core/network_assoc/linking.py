@@ -33,7 +33,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from mlkm_core.associators.linking import gate_pairs, match_sparse, relabel
+from mlkm_core.associators.gating import gate_pairs_grouped
+from mlkm_core.associators.linking import match_sparse, relabel
 from mlkm_core.model.cues import Cue
 from mlkm_core.model.motion import END_MISSES, FLOOR_T, MotionParams, PairwiseModel
 from mlkm_core.network_assoc.hops import Hops
@@ -53,16 +54,16 @@ class Links:
 
 def hop_cost(
     p: MotionParams,
-    distance: float,
+    distance: float | np.ndarray,
     ti: np.ndarray,
     ui: np.ndarray,
     tj: np.ndarray,
     uj: np.ndarray,
     spread: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(NLL, squared Mahalanobis distance) of links over ``distance`` [m] from (stamp [s],
-    slowness [s/m]) (ti, ui) to (tj, uj) (the time lost at junctions already taken off tj),
-    with the variance [s^2] the junctions add to the travel time."""
+    """(NLL, squared Mahalanobis distance) of links over ``distance`` [m] (one, or one per
+    link) from (stamp [s], slowness [s/m]) (ti, ui) to (tj, uj) (the time lost at junctions
+    already taken off tj), with the variance [s^2] the junctions add to the travel time."""
     n = ti.size
     rows = np.arange(n)
     pw = p.for_pairwise()
@@ -85,52 +86,98 @@ def candidates(
     per_hop: dict[int, MotionParams] | None = None,
     only: list[int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(i, j, cost, hop) of every gated candidate link (module docstring); ``cue`` (bound to
-    ``d``) and ``lanes`` add their costs to each; ``only``: these hops alone."""
+    """(i, j, cost, hop) of every gated candidate link (module docstring), by hop, then by
+    ``i``, then by the stamp of ``j``; ``cue`` (bound to ``d``) and ``lanes`` add their
+    costs to each; ``only``: these hops alone.
+
+    The hops that share a motion model and a junction spread are gated and costed at once
+    (a network has hundreds of hops, most with a few detections at either end)."""
     u = 1.0 / d.velocity
-    at = [np.flatnonzero(d.sensor_index == s) for s in range(hops.before.size)]
-    out_i, out_j, out_c, out_h = [], [], [], []
-    for h in range(hops.size) if only is None else only:
-        a, b = at[hops.src[h]], at[hops.dst[h]]
-        if a.size == 0 or b.size == 0:
-            continue
-        dist = float(hops.distance[h])
-        turns = hops.turns[h]
-        shift, spread = junctions.lost(h, turns)
+    n_st = hops.before.size
+    by_station = np.argsort(d.sensor_index, kind='stable')
+    count = np.bincount(d.sensor_index, minlength=n_st)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    chosen = np.arange(hops.size) if only is None else np.asarray(only, np.int64)
+    chosen = chosen[(count[hops.src[chosen]] > 0) & (count[hops.dst[chosen]] > 0)]
+    groups: dict[tuple[int, float], list[int]] = {}
+    models: dict[int, MotionParams] = {}
+    shifts = np.zeros(hops.size)
+    missed = np.zeros(hops.size)  # per hop [nats]
+    turned = np.zeros(hops.size)  # per hop [nats]
+    for h in chosen.tolist():
         ph = p if per_hop is None else per_hop.get(h, p)
-        rows = np.arange(a.size)
-        m = PairwiseModel(ph)
-        m.grow(a.size)
-        m.start(rows, 0.0, d.stamp[a], u[a])
-        centre, half = m.gate_window(m.predict(rows, dist))
-        half = np.sqrt(half * half + ph.gate * spread)
-        r, c = gate_pairs(centre + shift, half, d.stamp[b])
-        i, j = a[r], b[c]
-        keep = d.stamp[j] > d.stamp[i]
-        i, j = i[keep], j[keep]
-        if i.size == 0:
-            continue
-        nll, d2 = hop_cost(ph, dist, d.stamp[i], u[i], d.stamp[j] - shift, u[j], spread)
-        ok = np.isfinite(nll) & (d2 <= ph.gate)
-        i, j = i[ok], j[ok]
-        cost = nll[ok] + hops.skipped[h] * p.miss_cost + junctions.turn_cost(turns)
-        if cue is not None:
-            state = cue.tracks(False)
-            pairs = np.arange(i.size)
-            state.grow(i.size)
-            state.start(pairs, i)
-            cost = cost + state.cost(pairs, j)
-        if lanes is not None:
-            cost = cost + lanes.cost(h, d.lane[i], d.lane[j])
-        out_i.append(i)
-        out_j.append(j)
-        out_c.append(cost)
-        out_h.append(np.full(i.size, h))
-    if not out_i:
+        models[id(ph)] = ph
+        shifts[h], spread = junctions.lost(h, hops.turns[h])
+        missed[h] = hops.skipped[h] * p.miss_cost
+        turned[h] = junctions.turn_cost(hops.turns[h])
+        groups.setdefault((id(ph), float(spread)), []).append(h)
+    parts = [
+        _group_candidates(hops, d, u, models[key], spread, np.asarray(hs, np.int64),
+                          by_station, first, count, shifts)
+        for (key, spread), hs in groups.items()
+    ]  # fmt: skip
+    if not parts:
         z = np.zeros(0, np.int64)
         return z, z, np.zeros(0), z
-    return (np.concatenate(out_i), np.concatenate(out_j), np.concatenate(out_c),
-            np.concatenate(out_h))  # fmt: skip
+    i, j, cost, hop = (np.concatenate(c) for c in zip(*parts, strict=True))
+    order = np.argsort(hop, kind='stable')  # each group is by hop already
+    i, j, hop = i[order], j[order], hop[order]
+    cost = cost[order] + missed[hop] + turned[hop]
+    if cue is not None:
+        state = cue.tracks(False)
+        pairs = np.arange(i.size)
+        state.grow(i.size)
+        state.start(pairs, i)
+        cost = cost + state.cost(pairs, j)
+    if lanes is not None:
+        for h in set(lanes.tables).intersection(np.unique(hop).tolist()):
+            lo, hi = np.searchsorted(hop, [h, h + 1])
+            cost[lo:hi] += lanes.cost(h, d.lane[i[lo:hi]], d.lane[j[lo:hi]])
+    return i, j, cost, hop
+
+
+def _segments(stations: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Positions in the by-station order of the detections of each of ``stations``, one
+    station after the other."""
+    n = count[stations]
+    starts = np.repeat(first[stations] - np.concatenate([[0], np.cumsum(n)[:-1]]), n)
+    return starts + np.arange(int(n.sum()))
+
+
+def _group_candidates(
+    hops: Hops,
+    d: Detections,
+    u: np.ndarray,
+    ph: MotionParams,
+    spread: float,
+    hs: np.ndarray,
+    by_station: np.ndarray,
+    first: np.ndarray,
+    count: np.ndarray,
+    shifts: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(i, j, motion cost, hop) of the gated links across the hops ``hs``, which share the
+    motion model ``ph`` and the junction spread ``spread`` [s^2]; by hop, ``i``, stamp of
+    ``j``."""
+    a = by_station[_segments(hops.src[hs], first, count)]
+    a_hop = np.repeat(hs, count[hops.src[hs]])
+    rows = np.arange(a.size)
+    m = PairwiseModel(ph)
+    m.grow(a.size)
+    m.start(rows, 0.0, d.stamp[a], u[a])
+    centre, half = m.gate_window(m.predict(rows, hops.distance[a_hop]))
+    half = np.sqrt(half * half + ph.gate * spread)
+    centre = centre + shifts[a_hop]
+    b = by_station[_segments(hops.dst[hs], first, count)]
+    r, c = gate_pairs_grouped(a_hop, centre, half, np.repeat(hs, count[hops.dst[hs]]), d.stamp[b])
+    i, j, hop = a[r], b[c], a_hop[r]
+    keep = d.stamp[j] > d.stamp[i]
+    i, j, hop = i[keep], j[keep], hop[keep]
+    nll, d2 = hop_cost(
+        ph, hops.distance[hop], d.stamp[i], u[i], d.stamp[j] - shifts[hop], u[j], spread
+    )
+    ok = np.isfinite(nll) & (d2 <= ph.gate)
+    return i[ok], j[ok], nll[ok], hop[ok]
 
 
 def link_weights(
