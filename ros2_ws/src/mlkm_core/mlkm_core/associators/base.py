@@ -15,12 +15,15 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from mlkm_core.registry import Registry
 from mlkm_core.types import Detections, Layout, segments
+
+if TYPE_CHECKING:
+    from mlkm_core.model.motion import MotionParams
 
 
 @dataclass(frozen=True)
@@ -103,6 +106,19 @@ class Associator(ABC):
     @abstractmethod
     def associate(self, layout: Layout, detections: Detections, n_targets: int) -> np.ndarray:
         """Return one label per detection: a track number >= 0 or UNASSIGNED (-1)."""
+
+    def settled(
+        self,
+        layout: Layout,
+        d: Detections,
+        params: MotionParams,
+        evidence: tuple[float, float] | None,
+    ) -> tuple[MotionParams, tuple[float, float] | None]:
+        """What this method decides about the traffic once per stream, not once per window:
+        ``params`` (bound to the window ``d``, canonical order) with the decision taken on
+        the ``evidence`` of the windows before and on ``d``'s, and ``d``'s evidence, which
+        the stream tracker adds up as (sum, weight) over its windows. Nothing by default."""
+        return params, None
 
     def session(self, layout: Layout, n_targets: int) -> Session:
         return Session(self, layout, n_targets)

@@ -32,6 +32,8 @@ from mlkm_core.types import Detections, Layout, link_pairs
 #: the fields fitted (those the pairwise cost reads besides the gate and the delays)
 FIELDS = ('sigma', 'length', 'stamp_noise', 'velocity_noise')
 JUMP_FIELDS = ('jump_rate', 'jump_sigma')
+#: fewest links on which the two models' predictions are compared (``kalman_lead``)
+MIN_LEAD_LINKS = 10
 #: most links scored per candidate (a seeded sample beyond)
 MAX_LINKS = 20_000
 #: fewest links the six parameters are fitted on (below, the Kalman fit's values stay): fitted
@@ -133,7 +135,7 @@ def fit_links(
 def kalman_lead(layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams) -> float:
     """NLL per link [nats] of the Kalman model minus that of the pairwise model, each with its
     own parameters, on the links of ``labels`` (< 0: the Kalman model predicts them better;
-    0 with fewer than 10 links).
+    0 with fewer than ``MIN_LEAD_LINKS`` links).
 
     Both give the density of a track's next detection (stamp, slowness) given its earlier ones,
     so their summed log-likelihoods over the same links (capped as in ``sequence_nll``, lane
@@ -141,10 +143,26 @@ def kalman_lead(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
     on the whole history and wins where its structure (a cruise speed the target reverts to)
     holds.
     """
+    return lead_per_link(kalman_evidence(layout, d, labels, params))
+
+
+def lead_per_link(evidence: tuple[float, float]) -> float:
+    """The Kalman model's lead per link [nats] of (summed lead [nats], links): 0 on fewer
+    than ``MIN_LEAD_LINKS`` links."""
+    total, links = evidence
+    return total / links if links >= MIN_LEAD_LINKS else 0.0
+
+
+def kalman_evidence(
+    layout: Layout, d: Detections, labels: np.ndarray, params: MotionParams
+) -> tuple[float, float]:
+    """(summed NLL [nats] of the Kalman model minus the pairwise model's, links) over the
+    links of ``labels`` (``kalman_lead`` per link); (0, 0) with fewer than
+    ``MIN_LEAD_LINKS``."""
     p = replace(params, cues=None)
     a, b = link_pairs(d, labels)
-    if a.size < 10:
-        return 0.0
+    if a.size < MIN_LEAD_LINKS:
+        return 0.0, 0.0
     m = PairwiseModel(p)
     m.grow(a.size)
     rows = np.arange(a.size)
@@ -157,7 +175,7 @@ def kalman_lead(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
     none = np.zeros(seqs.shape[0], bool)
     kalman = float(sequence_nll(layout, d, seqs, p, none, none).sum())
     skipped = float((d.sensor_index[b] - d.sensor_index[a] - 1).sum()) * p.miss_cost
-    return (kalman - skipped - pairwise) / a.size
+    return kalman - skipped - pairwise, float(a.size)
 
 
 def own_fit(

@@ -105,6 +105,10 @@ class MotionParams:
     # a persistent cruise speed; where traffic has none (stop-and-go), the values it prefers
     # make the pairwise cost trust the speeds at a gap's two ends too much or too little.
     pairwise_fit: tuple[tuple[str, float], ...] | None = field(default=None, repr=False)
+    # whether the Kalman model predicts the traffic's links (``multiframe.kalman_fits``),
+    # decided beforehand: a stream's window decides on the links of every window before it
+    # too (``multiframe.settled``); None: the input decides on its own links
+    kalman_fits: bool | None = None
 
     @staticmethod
     def road_openings(

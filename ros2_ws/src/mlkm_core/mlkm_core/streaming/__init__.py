@@ -34,8 +34,13 @@ Mechanism
    carried over (``solve.CarriedModel``; not a model that learnt a queue's order within
    lanes, which is bound to its own detections, and not one estimated on fewer rows than a
    full context, as on a road that is filling up: then the next window calibrates again).
-   With a lag longer than the input nothing is committed before ``flush``, whose window is
-   the whole input and calibrates: the stream gives exactly the batch association.
+   What a method decides about the traffic rather than about a window (``multiframe``:
+   whether vehicles keep a cruise speed, which picks the motion model of its search) is
+   decided on the evidence of every window so far (``Associator.settled``; the tracker adds
+   each window's for the share of its rows it commits, the older fading past
+   ``solve.EVIDENCE_WEIGHT``), so the windows do not flip between models. With a lag longer
+   than the input nothing is committed before ``flush``, whose window is the whole input and
+   calibrates: the stream gives exactly the batch association.
 3. **Stitching onto stable ids.** The window's clusters are mapped back through the anchors:
    a cluster holding the last committed detection of an open track continues that track (of
    several such tracks, each takes the cluster's window detections from its own last

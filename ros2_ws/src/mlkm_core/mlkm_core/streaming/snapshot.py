@@ -101,6 +101,7 @@ class WindowSnapshots(ImmediateLinks):
             as_detections(rows),
             calibration,
             self._model if carry else None,
+            self._evidence,
         )
         prepared.n_anchors = len(anchors)
         prepared.anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)

@@ -80,6 +80,9 @@ class WindowProblem:
     # a method that calibrates: None = calibrate on the detections (the solution returns the
     # model), else the model to carry over
     model: CarriedModel | None = None
+    # what the method decides once per stream, from the windows solved so far: their
+    # evidence added up (``Associator.settled``; None: none yet)
+    evidence: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,29 @@ class WindowSolution:
     failed: bool  # the method could not associate the window (generic assignment instead)
     params: MotionParams | None  # the recalibrated motion model (None: keep the current one)
     model: CarriedModel | None = None  # the method's model, when this solve calibrated it
+    evidence: tuple[float, float] | None = None  # this window's (``Associator.settled``)
+
+
+#: most evidence weight the stream keeps (links, for ``multiframe``): about 20 windows of a
+#: busy road; beyond it the older evidence is scaled down, so that a change of traffic (free
+#: flow into stop-and-go) turns the decision within as many windows
+EVIDENCE_WEIGHT = 20_000.0
+
+
+def add_evidence(
+    kept: tuple[float, float] | None, new: tuple[float, float], share: float = 1.0
+) -> tuple[float, float]:
+    """``kept`` (sum, weight) plus ``share`` of a window's evidence ``new``, scaled to at
+    most ``EVIDENCE_WEIGHT``. The tracker adds each window for the share of its rows it
+    commits: every detection is committed once, so overlapping windows count a link about
+    once, and a stream that commits nothing before its flush decides as batch does, on the
+    whole input."""
+    total, weight = new[0] * share, new[1] * share
+    if kept is not None:
+        total, weight = total + kept[0], weight + kept[1]
+    if weight > EVIDENCE_WEIGHT:
+        total, weight = total * EVIDENCE_WEIGHT / weight, EVIDENCE_WEIGHT
+    return total, weight
 
 
 _ASSOCIATORS: dict[tuple[str, AssociatorConfig], Any] = {}
@@ -120,8 +146,11 @@ def solve(problem: WindowProblem) -> WindowSolution:
                 model = CarriedModel.of(motion)
         else:
             motion = problem.model.bind(layout, ordered)
+    evidence = None
+    if motion is not None:
+        motion, evidence = associator.settled(layout, ordered, motion, problem.evidence)
     labels, degraded, failed = solve_window(associator, layout, d, motion)
-    return WindowSolution(labels, degraded, failed, params, model)
+    return WindowSolution(labels, degraded, failed, params, model, evidence)
 
 
 class InlineExecutor:

@@ -16,7 +16,7 @@ from mlkm_core.streaming.config import (
     StreamUpdate,
 )
 from mlkm_core.streaming.snapshot import PreparedWindow, WindowSnapshots
-from mlkm_core.streaming.solve import CarriedModel, WindowSolution, solve
+from mlkm_core.streaming.solve import CarriedModel, WindowSolution, add_evidence, solve
 from mlkm_core.streaming.window import owners
 from mlkm_core.types import UNKNOWN_LANE, Layout
 
@@ -60,6 +60,8 @@ class StreamTracker(WindowSnapshots):
         # context (a road filling up) is not carried, the next window calibrates again
         self._calibrated_rows = 0
         self._model: CarriedModel | None = None  # the method's, from its last calibrating solve
+        # the method's evidence about the traffic over the windows solved (``add_evidence``)
+        self._evidence: tuple[float, float] | None = None
         self._next_k: int | None = None
         self._solved = False
         self._lag = config.lag
@@ -350,7 +352,10 @@ class StreamTracker(WindowSnapshots):
             n_a = p.n_anchors
             self._apply(p.window, own[n_a:], [g - n_a for g in groups])
             in_window = {d.key for d in p.window}
-            self._commit([d for d in p.window if d.stamp < p.cutoff], in_window)
+            due = [det for det in p.window if det.stamp < p.cutoff]
+            if solution.evidence is not None and due:
+                self._evidence = add_evidence(self._evidence, solution.evidence, len(due) / len(d))
+            self._commit(due, in_window)
         if not final:  # a flush commits up to the newest stamp (``flush``)
             self._committed_until = max(self._committed_until, p.cutoff)
         self._grow_lag(p)
