@@ -23,7 +23,7 @@ def gate_pairs(
     sv = values[order]
     lo = np.searchsorted(sv, centre - half_width, side='left')
     hi = np.searchsorted(sv, centre + half_width, side='right')
-    return _runs(lo, hi, order)
+    return runs(lo, hi, order)
 
 
 def gate_pairs_grouped(
@@ -49,12 +49,13 @@ def gate_pairs_grouped(
     is_value = events < n_v
     before = np.empty(events.size, np.int64)
     before[events] = np.cumsum(is_value) - is_value  # values sorted before each event
-    return _runs(before[n_v : n_v + n_r], before[n_v + n_r :], events[is_value])
+    return runs(before[n_v : n_v + n_r], before[n_v + n_r :], events[is_value])
 
 
-def _runs(lo: np.ndarray, hi: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(i, order[k]) for every k in [lo[i], hi[i]) of each row i: the pairs of the gates whose
-    runs in the sorted values ``order`` are [lo, hi)."""
+def runs(lo: np.ndarray, hi: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(i, order[k]) for every k in [lo[i], hi[i]) of each row i, row after row: the pairs of
+    the gates whose runs in the sorted values ``order`` are [lo, hi), or the members of
+    groups stored as runs of ``order``."""
     counts = np.maximum(hi - lo, 0)
     rows = np.repeat(np.arange(lo.size), counts)
     starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)

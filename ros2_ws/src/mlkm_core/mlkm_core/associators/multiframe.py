@@ -109,28 +109,29 @@ class MultiFrameAssociator(TrackingAssociator):
         are undone under the other (NGSIM I-80, 20 loops, time and speed: the Kalman model in
         8 of 26 windows where the whole input rejects it, the stream 1.5 points below batch;
         decided on the evidence so far, in none after the fifth, 0.5 below)."""
-        openings = MotionParams.road_openings(
-            layout.positions, self.config.entries, self.config.exits
-        )
-        p = replace(params, open_road=openings)
+        p = params.on_road(layout.positions, self.config.entries, self.config.exits)
         with np.errstate(all='ignore'):
-            pairwise = repaired(layout, d, link(layout, d, p, 'pairwise'), p)
-            own = kalman_evidence(layout, d, relabel(pairwise), p)
+            own = kalman_evidence(layout, d, relabel(self._pairwise(layout, d, p)), p)
         if not all(math.isfinite(v) for v in own):
             return params, None  # a window whose links cannot be scored: no evidence
         total = own if evidence is None else (own[0] + evidence[0], own[1] + evidence[1])
         return replace(params, kalman_fits=bool(lead_per_link(total) < FIT_MARGIN)), own
 
     @staticmethod
+    def _pairwise(layout: Layout, d: Detections, params: MotionParams) -> np.ndarray:
+        """The repaired pairwise pass."""
+        with np.errstate(all='ignore'):
+            return repaired(layout, d, link(layout, d, params, 'pairwise'), params)
+
     def _pairwise_pass(
-        layout: Layout, d: Detections, params: MotionParams
+        self, layout: Layout, d: Detections, params: MotionParams
     ) -> tuple[np.ndarray, bool]:
         """The repaired pairwise pass and whether the Kalman model fits its links (decided
         beforehand where ``params`` carries the decision)."""
-        with np.errstate(all='ignore'):
-            pairwise = repaired(layout, d, link(layout, d, params, 'pairwise'), params)
-            fits = params.kalman_fits
-            if fits is None:
+        pairwise = self._pairwise(layout, d, params)
+        fits = params.kalman_fits
+        if fits is None:
+            with np.errstate(all='ignore'):
                 fits = kalman_fits(layout, d, relabel(pairwise), params)
         return pairwise, fits
 
@@ -188,5 +189,5 @@ class MultiFrameAssociator(TrackingAssociator):
                 DegradedResultWarning,
                 stacklevel=3,
             )
-            best = pairwise if pairwise is not None else self._pairwise_pass(layout, d, params)[0]
+            best = pairwise if pairwise is not None else self._pairwise(layout, d, params)
         return best

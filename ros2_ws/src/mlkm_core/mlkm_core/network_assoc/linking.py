@@ -33,7 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from mlkm_core.associators.gating import gate_pairs_grouped
+from mlkm_core.associators.gating import gate_pairs_grouped, runs
 from mlkm_core.associators.linking import match_sparse, relabel
 from mlkm_core.model.cues import Cue
 from mlkm_core.model.motion import END_MISSES, FLOOR_T, MotionParams, PairwiseModel
@@ -99,22 +99,20 @@ def candidates(
     first = np.concatenate([[0], np.cumsum(count)[:-1]])
     chosen = np.arange(hops.size) if only is None else np.asarray(only, np.int64)
     chosen = chosen[(count[hops.src[chosen]] > 0) & (count[hops.dst[chosen]] > 0)]
-    groups: dict[tuple[int, float], list[int]] = {}
-    models: dict[int, MotionParams] = {}
+    groups: dict[tuple[int, float], tuple[MotionParams, list[int]]] = {}
     shifts = np.zeros(hops.size)
     missed = np.zeros(hops.size)  # per hop [nats]
     turned = np.zeros(hops.size)  # per hop [nats]
     for h in chosen.tolist():
         ph = p if per_hop is None else per_hop.get(h, p)
-        models[id(ph)] = ph
         shifts[h], spread = junctions.lost(h, hops.turns[h])
         missed[h] = hops.skipped[h] * p.miss_cost
         turned[h] = junctions.turn_cost(hops.turns[h])
-        groups.setdefault((id(ph), float(spread)), []).append(h)
+        groups.setdefault((id(ph), float(spread)), (ph, []))[1].append(h)
     parts = [
-        _group_candidates(hops, d, u, models[key], spread, np.asarray(hs, np.int64),
+        _group_candidates(hops, d, u, ph, spread, np.asarray(hs, np.int64),
                           by_station, first, count, shifts)
-        for (key, spread), hs in groups.items()
+        for (_, spread), (ph, hs) in groups.items()
     ]  # fmt: skip
     if not parts:
         z = np.zeros(0, np.int64)
@@ -136,14 +134,6 @@ def candidates(
     return i, j, cost, hop
 
 
-def _segments(stations: np.ndarray, first: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """Positions in the by-station order of the detections of each of ``stations``, one
-    station after the other."""
-    n = count[stations]
-    starts = np.repeat(first[stations] - np.concatenate([[0], np.cumsum(n)[:-1]]), n)
-    return starts + np.arange(int(n.sum()))
-
-
 def _group_candidates(
     hops: Hops,
     d: Detections,
@@ -159,8 +149,9 @@ def _group_candidates(
     """(i, j, motion cost, hop) of the gated links across the hops ``hs``, which share the
     motion model ``ph`` and the junction spread ``spread`` [s^2]; by hop, ``i``, stamp of
     ``j``."""
-    a = by_station[_segments(hops.src[hs], first, count)]
-    a_hop = np.repeat(hs, count[hops.src[hs]])
+    src, dst = hops.src[hs], hops.dst[hs]
+    k, a = runs(first[src], first[src] + count[src], by_station)
+    a_hop = hs[k]
     rows = np.arange(a.size)
     m = PairwiseModel(ph)
     m.grow(a.size)
@@ -168,8 +159,8 @@ def _group_candidates(
     centre, half = m.gate_window(m.predict(rows, hops.distance[a_hop]))
     half = np.sqrt(half * half + ph.gate * spread)
     centre = centre + shifts[a_hop]
-    b = by_station[_segments(hops.dst[hs], first, count)]
-    r, c = gate_pairs_grouped(a_hop, centre, half, np.repeat(hs, count[hops.dst[hs]]), d.stamp[b])
+    k, b = runs(first[dst], first[dst] + count[dst], by_station)
+    r, c = gate_pairs_grouped(a_hop, centre, half, hs[k], d.stamp[b])
     i, j, hop = a[r], b[c], a_hop[r]
     keep = d.stamp[j] > d.stamp[i]
     i, j, hop = i[keep], j[keep], hop[keep]
