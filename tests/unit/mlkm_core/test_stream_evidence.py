@@ -87,6 +87,31 @@ def test_a_decided_model_is_not_decided_again(monkeypatch):
     assert np.array_equal(decided, mf.associate(layout, d, 30, motion=p))
 
 
+def test_the_pairwise_search_starts_from_the_pass_settled_made(monkeypatch):
+    """A window decided for the pairwise model searches from the pairwise pass that
+    ``settled`` made for its decision, not from a second one, and associates alike."""
+    layout, d, p, _ = _window()
+    mf = make_associator('multiframe', AssociatorConfig())
+    settled, _ = mf.settled(layout, d, p, (1e6, 1e6))  # before: 1 nat per link worse
+    assert settled.kalman_fits is False
+    calls = []
+    real = multiframe.MultiFrameAssociator._pairwise
+    counted = staticmethod(lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(multiframe.MultiFrameAssociator, '_pairwise', counted)
+    reused = mf.associate(layout, d, 30, motion=settled)
+    assert calls == []
+    fresh = make_associator('multiframe', AssociatorConfig())
+    assert np.array_equal(reused, fresh.associate(layout, d, 30, motion=settled))
+    assert calls == [1]
+    # another model object, or other detections: the pass is made for them
+    mf.associate(layout, d, 30, motion=replace(settled))
+    assert calls == [1, 1]
+    settled, _ = mf.settled(layout, d, p, (1e6, 1e6))
+    assert calls == [1, 1, 1]
+    mf.associate(layout, d.subset(np.arange(len(d) - 1)), 30, motion=settled)
+    assert calls == [1, 1, 1, 1]
+
+
 @pytest.mark.slow
 def test_stream_on_real_traffic_keeps_one_model_and_the_accuracy_of_batch(monkeypatch):
     """NGSIM I-80, 20 loops over 400 m, vehicles seen where observed, time and speed: the

@@ -21,11 +21,12 @@ from higher-order evidence. Two sources:
 
 The model parameters are estimated from the data (``calibration.estimate_params``), lane and
 length included when reported. In a stream, which model the search scores with is decided on
-the links of every window so far, not on each window alone (``settled``). On an open road
-(``AssociatorConfig.entries`` / ``exits``) a track that starts after an entry or ends before
-an exit pays only for the sensors it could have passed; tracks that end or start where no
-target can leave or enter are joined after the search where the whole-track cost favours it
-(``linking.join_fragments``). The local search scores at most
+the links of every window so far, not on each window alone (``settled``), and a window
+decided for the pairwise model searches from the pairwise pass that decision was made on. On
+an open road (``AssociatorConfig.entries`` / ``exits``) a track that starts after an entry or
+ends before an exit pays only for the sensors it could have passed; tracks that end or start
+where no target can leave or enter are joined after the search where the whole-track cost
+favours it (``linking.join_fragments``). The local search scores at most
 ``AssociatorConfig.search_budget`` candidates per starting point.
 
 Where vehicles keep no speed of their own (stop-and-go traffic: a vehicle's deviations from the
@@ -110,12 +111,29 @@ class MultiFrameAssociator(TrackingAssociator):
         8 of 26 windows where the whole input rejects it, the stream 1.5 points below batch;
         decided on the evidence so far, in none after the fifth, 0.5 below)."""
         p = params.on_road(layout.positions, self.config.entries, self.config.exits)
+        pairwise = self._pairwise(layout, d, p)
         with np.errstate(all='ignore'):
-            own = kalman_evidence(layout, d, relabel(self._pairwise(layout, d, p)), p)
+            own = kalman_evidence(layout, d, relabel(pairwise), p)
         if not all(math.isfinite(v) for v in own):
             return params, None  # a window whose links cannot be scored: no evidence
         total = own if evidence is None else (own[0] + evidence[0], own[1] + evidence[1])
-        return replace(params, kalman_fits=bool(lead_per_link(total) < FIT_MARGIN)), own
+        out = replace(p, kalman_fits=bool(lead_per_link(total) < FIT_MARGIN))
+        # ``track`` under the pairwise model starts from this very pass
+        self._settled_pass = (out, d, pairwise)
+        return out, own
+
+    def _reused_pass(self, d: Detections, params: MotionParams) -> np.ndarray | None:
+        """The pairwise pass that ``settled`` last made, if it made it for ``params`` (the
+        same object) and detections equal to ``d``; else None."""
+        last = getattr(self, '_settled_pass', None)
+        if last is None or last[0] is not params:
+            return None
+        seen = last[1]
+        same = len(seen) == len(d) and all(
+            np.array_equal(getattr(seen, f), getattr(d, f))
+            for f in ('sensor_index', 'stamp', 'velocity')
+        )
+        return last[2].copy() if same else None
 
     @staticmethod
     def _pairwise(layout: Layout, d: Detections, params: MotionParams) -> np.ndarray:
@@ -128,7 +146,9 @@ class MultiFrameAssociator(TrackingAssociator):
     ) -> tuple[np.ndarray, bool]:
         """The repaired pairwise pass and whether the Kalman model fits its links (decided
         beforehand where ``params`` carries the decision)."""
-        pairwise = self._pairwise(layout, d, params)
+        pairwise = self._reused_pass(d, params)
+        if pairwise is None:
+            pairwise = self._pairwise(layout, d, params)
         fits = params.kalman_fits
         if fits is None:
             with np.errstate(all='ignore'):

@@ -48,7 +48,8 @@ class TrackingAssociator(Associator):
                 layout.positions, self.config.entries, self.config.exits
             )
             p = motion if motion is not None else estimate_params(layout, d, openings)
-        p = replace(p, open_road=openings)
+        if not _same_openings(p.open_road, openings):
+            p = replace(p, open_road=openings)  # a given model keeps its identity otherwise
         with stage(calibrated, tracked):
             raw = self.track(layout, d, n_targets, p, motion is not None)
         with stage(tracked, 1.0):
@@ -61,3 +62,10 @@ class TrackingAssociator(Associator):
     ) -> np.ndarray:
         """Raw track ids of ``d`` (canonical order) under the calibrated model ``p``;
         ``given``: the caller gave the model (else ``p`` was calibrated on ``d``)."""
+
+
+def _same_openings(a, b) -> bool:
+    """Whether two ``MotionParams.open_road`` values are equal (None: a closed road)."""
+    if a is None or b is None:
+        return a is b
+    return all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
