@@ -64,9 +64,9 @@ from mlkm_core.csvio import (
     TRUTH,
     InputError,
     InvalidRows,
-    write_tracks,
 )
 from mlkm_core.csvio import read_detections as read_csv
+from mlkm_core.csvout import write_tracks
 from mlkm_core.types import Detections, Layout
 
 #: Detections each method associates in well under a minute on one core (simulated data, 20

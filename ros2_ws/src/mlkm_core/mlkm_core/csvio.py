@@ -1,4 +1,4 @@
-"""Detections CSV files: strict reading with line-precise errors, and writing the tracks.
+"""Detections CSV files: strict reading with line-precise errors.
 
 A file has a header with the columns ``sensor_id,position_m,stamp_s,velocity_mps`` and
 optionally ``target_id`` (ground truth, -1 = false alarm), ``lane`` (index from the right,
@@ -22,8 +22,9 @@ Two kinds of problems:
   ``MAX_LISTED`` listed); with ``skip_invalid`` the valid rows are associated and the
   invalid ones are written back with track -1 and their reason, so that nothing is lost.
 
-The rows themselves are not kept in memory: :func:`write_tracks` reads the input again and
-copies each row verbatim, after checking that the file has not changed in between.
+The rows themselves are not kept in memory: :func:`mlkm_core.csvout.write_tracks` reads the
+input again and copies each row verbatim, after checking that the file has not changed in
+between.
 """
 
 from __future__ import annotations
@@ -32,8 +33,6 @@ import csv
 import difflib
 import io
 import math
-import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -108,7 +107,8 @@ class CsvDetections:
         return int(self.row_detection.size)
 
 
-def _signature(path: Path) -> tuple[int, int]:
+def file_signature(path: Path) -> tuple[int, int]:
+    """(size, mtime_ns) of a file: whether it changed since it was read."""
     st = path.stat()
     return st.st_size, st.st_mtime_ns
 
@@ -127,7 +127,7 @@ def _utf8_error_line(path: Path) -> str:
     return 'line 1: not UTF-8 text'
 
 
-class _Rows:
+class Rows:
     """csv rows of a file with their line numbers; decoding errors name the real line."""
 
     def __init__(self, path: Path) -> None:
@@ -197,7 +197,7 @@ def _velocity_message(reason: str, v: float, bounds: Bounds) -> str:
     return f'velocity_mps must be finite, got {v!r}'
 
 
-def _read_header(rows: _Rows, tracks: bool = False) -> list[str]:
+def _read_header(rows: Rows, tracks: bool = False) -> list[str]:
     first = rows.next()
     expected = f'{",".join(REQUIRED)}[,{TRUTH}][,{LANE}][,{LENGTH}]'
     if first is None:
@@ -247,14 +247,14 @@ def read_detections(
 
     With ``skip_invalid`` the invalid rows are returned in ``problems`` instead, as long as
     at least one row is valid. With ``tracks`` the file is a tracks CSV (what
-    :func:`write_tracks` writes): its ``track_id`` column, required, is read into
-    ``CsvDetections.track``; a value that is not an integer >= -1 is an InputError.
+    :func:`mlkm_core.csvout.write_tracks` writes): its ``track_id`` column, required, is read
+    into ``CsvDetections.track``; a value that is not an integer >= -1 is an InputError.
     """
     path = Path(path)
     bounds = bounds or OFFLINE
-    rows = _Rows(path)
+    rows = Rows(path)
     try:
-        signature = _signature(path)
+        signature = file_signature(path)
         header = _read_header(rows, tracks)
         if tracks and TRACK not in header:
             raise InputError(
@@ -422,53 +422,3 @@ def _index(layout: Layout, ids: np.ndarray) -> np.ndarray:
     """Layout index of each sensor id (every id is in the layout)."""
     by_id = np.argsort(layout.sensor_ids)
     return by_id[np.searchsorted(layout.sensor_ids[by_id], ids)]
-
-
-def write_tracks(
-    path: str | Path,
-    data: CsvDetections,
-    labels: np.ndarray,
-    with_reasons: bool = False,
-    progress: Progress | None = None,
-) -> None:
-    """Write every row of the input plus ``track_id`` (and ``rejected``), atomically.
-
-    Invalid rows get track -1 and, with ``with_reasons``, their reason in ``rejected``
-    (empty for the associated rows). Raises InputError when the input changed since it was
-    read, OSError when the output cannot be written; no partial output is left behind.
-    """
-    path = Path(path)
-    labels = np.asarray(labels, np.int64)
-    if _signature(data.path) != data.signature:
-        raise InputError(f'{data.path}: the file changed while it was being associated')
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
-    rows = _Rows(data.path)
-    try:
-        with os.fdopen(fd, 'w', newline='', encoding='utf-8') as f:
-            w = csv.writer(f)
-            rows.next()
-            w.writerow([*data.header, TRACK, *([REJECTED] if with_reasons else [])])
-            k = 0
-            while (row := rows.next()) is not None:
-                if not row or all(not c.strip() for c in row):
-                    continue
-                if k >= data.n_rows:
-                    raise InputError(f'{data.path}: the file changed while it was being written')
-                det = int(data.row_detection[k])
-                out = [*row, int(labels[det]) if det >= 0 else -1]
-                if with_reasons:
-                    problem = data.problems.get(k)
-                    out.append(problem.reason if problem else '')
-                w.writerow(out)
-                k += 1
-                if progress is not None and k % 8192 == 0:
-                    progress(k)
-            if k != data.n_rows:
-                raise InputError(f'{data.path}: the file changed while it was being written')
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    finally:
-        rows.close()

@@ -1,4 +1,5 @@
-"""Writing detections to the product's CSV (the format ``mlkm_core.csvio`` reads).
+"""Writing the product's CSV (the format ``mlkm_core.csvio`` reads): detections, and an
+input file's rows with their tracks (``write_tracks``).
 
 One row per detection, sorted by stamp (ties by station), written atomically: a temporary
 file in the same folder renamed into place, so that a reader never sees half a file. Rows are
@@ -8,14 +9,28 @@ few seconds, and ``progress(rows_written)`` is called after each chunk.
 
 from __future__ import annotations
 
+import csv
 import os
 import secrets
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from mlkm_core.csvio import LANE, LENGTH, REQUIRED, TRUTH
+from mlkm_core.csvio import (
+    LANE,
+    LENGTH,
+    REJECTED,
+    REQUIRED,
+    TRACK,
+    TRUTH,
+    CsvDetections,
+    InputError,
+    Progress,
+    Rows,
+    file_signature,
+)
 from mlkm_core.types import Detections, Layout
 
 COLUMNS = (*REQUIRED, TRUTH, LANE, LENGTH)
@@ -79,3 +94,53 @@ def write_detections(
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def write_tracks(
+    path: str | Path,
+    data: CsvDetections,
+    labels: np.ndarray,
+    with_reasons: bool = False,
+    progress: Progress | None = None,
+) -> None:
+    """Write every row of the input plus ``track_id`` (and ``rejected``), atomically.
+
+    Invalid rows get track -1 and, with ``with_reasons``, their reason in ``rejected``
+    (empty for the associated rows). Raises InputError when the input changed since it was
+    read, OSError when the output cannot be written; no partial output is left behind.
+    """
+    path = Path(path)
+    labels = np.asarray(labels, np.int64)
+    if file_signature(data.path) != data.signature:
+        raise InputError(f'{data.path}: the file changed while it was being associated')
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix='.tmp')
+    rows = Rows(data.path)
+    try:
+        with os.fdopen(fd, 'w', newline='', encoding='utf-8') as f:
+            w = csv.writer(f)
+            rows.next()
+            w.writerow([*data.header, TRACK, *([REJECTED] if with_reasons else [])])
+            k = 0
+            while (row := rows.next()) is not None:
+                if not row or all(not c.strip() for c in row):
+                    continue
+                if k >= data.n_rows:
+                    raise InputError(f'{data.path}: the file changed while it was being written')
+                det = int(data.row_detection[k])
+                out = [*row, int(labels[det]) if det >= 0 else -1]
+                if with_reasons:
+                    problem = data.problems.get(k)
+                    out.append(problem.reason if problem else '')
+                w.writerow(out)
+                k += 1
+                if progress is not None and k % 8192 == 0:
+                    progress(k)
+            if k != data.n_rows:
+                raise InputError(f'{data.path}: the file changed while it was being written')
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    finally:
+        rows.close()
