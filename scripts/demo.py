@@ -21,10 +21,10 @@ import time
 from pathlib import Path
 
 from mlkm_assoc.timespace_plot import plot_beside_bag
+from mlkm_ros.domains import domain
 from mlkm_ros.processes import (
     Graph,
     ScoreCollector,
-    domain,
     format_scores,
     recorder_args,
     replay_hint,

@@ -26,7 +26,8 @@ from pathlib import Path
 from demo_stream import format_stream_scores, latest_values
 
 from mlkm_core.shards.regions import split_road
-from mlkm_ros.processes import Graph, ScoreCollector, domain, recorder_args, replay_hint
+from mlkm_ros.domains import domain
+from mlkm_ros.processes import Graph, ScoreCollector, recorder_args, replay_hint
 
 ROOT = Path(__file__).resolve().parents[1]
 METHOD = 'multiframe'

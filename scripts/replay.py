@@ -32,7 +32,8 @@ import time
 from pathlib import Path
 
 from mlkm_assoc.timespace_plot import plot_beside_bag
-from mlkm_ros.processes import Graph, ScoreCollector, domain, format_scores, start_association
+from mlkm_ros.domains import domain
+from mlkm_ros.processes import Graph, ScoreCollector, format_scores, start_association
 from mlkm_ros.qos import REPLAY_INCLUDE_REGEX
 
 EXIT_DAMAGED = 3  # as bag_player: the readable part of a damaged bag was replayed

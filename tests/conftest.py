@@ -44,7 +44,7 @@ that start the product's executables as processes (tests/graph, tests/bags, and 
 ``ros`` in tests/experiments) form one group, run one after another on one worker, while the
 other worker takes the in-process tiers: a graph test shares the machine with one busy core,
 as on any loaded machine, never with another graph of nodes. The domain ids of both workers
-come from one machine-wide pool (``mlkm_ros.processes.reserve_domain``).
+come from one machine-wide pool (``mlkm_ros.domains.reserve_domain``).
 """
 
 from __future__ import annotations
@@ -174,7 +174,7 @@ def ngsim_loops(repo_root):
 @pytest.fixture
 def ros_domain_id() -> Iterator[int]:
     """A ROS_DOMAIN_ID that no other test, demo or session on this machine holds right now."""
-    from mlkm_ros.processes import reserve_domain  # after the env.sh re-exec above
+    from mlkm_ros.domains import reserve_domain  # after the env.sh re-exec above
 
     with reserve_domain() as domain_id:
         yield domain_id

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from mlkm_ros.domains import graph_env
 from mlkm_ros.network import LOOPBACK_PROFILE, loopback_env
-from mlkm_ros.processes import graph_env
 
 REPO = Path(__file__).resolve().parents[2]
 ENV_SH = REPO / 'env.sh'

@@ -18,10 +18,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from mlkm_ros.domains import domain
 from mlkm_ros.processes import (
     Graph,
     ScoreCollector,
-    domain,
     executable,
     recorder_args,
     start_association,

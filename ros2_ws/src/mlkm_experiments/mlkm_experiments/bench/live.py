@@ -186,7 +186,7 @@ def run(
 ) -> dict:
     """Run both measurements ``repeats`` times, alternating (the machine is shared, so
     medians over interleaved runs); write ``live.json`` and ``live.md`` in ``out_dir``."""
-    from mlkm_ros.processes import domain
+    from mlkm_ros.domains import domain
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

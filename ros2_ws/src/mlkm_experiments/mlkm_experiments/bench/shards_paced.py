@@ -313,7 +313,7 @@ def _brief(r: dict) -> str:
 
 
 def run_paced(log: Log, quick: bool = False, cache_dir: Path | None = None) -> dict:
-    from mlkm_ros.processes import domain
+    from mlkm_ros.domains import domain
 
     log_dir = Path(tempfile.mkdtemp(prefix='mlkm_bench_shards_paced_'))
     files = write_log(log_dir, cache_dir)

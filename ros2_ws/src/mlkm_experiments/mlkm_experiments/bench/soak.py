@@ -85,7 +85,8 @@ def run_soak(
     timeout: float = 1800.0,
 ) -> dict:
     from mlkm_ros.conversions import diagnostics_values
-    from mlkm_ros.processes import Graph, ScoreCollector, domain, start_association
+    from mlkm_ros.domains import domain
+    from mlkm_ros.processes import Graph, ScoreCollector, start_association
 
     expected = episodes * targets * sensors
     log_dir = Path(tempfile.mkdtemp(prefix='mlkm_bench_soak_'))

@@ -380,7 +380,7 @@ def run_throughput(domain_id: int, log_dir: Path) -> dict:
 
 
 def run_stream(log: Log, quick: bool = False, cache_dir: Path | None = None) -> dict:
-    from mlkm_ros.processes import domain
+    from mlkm_ros.domains import domain
 
     log_dir = Path(tempfile.mkdtemp(prefix='mlkm_bench_stream_'))
     out: dict = {'logs': str(log_dir), 'load_average_1min_start': os.getloadavg()[0]}
