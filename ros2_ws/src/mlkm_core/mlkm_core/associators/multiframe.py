@@ -94,6 +94,8 @@ def kalman_fits(layout: Layout, d: Detections, labels: np.ndarray, params: Motio
 class MultiFrameAssociator(TrackingAssociator):
     name = 'multiframe'
     progress_shares = (0.33, 0.94)
+    #: (model returned, window, its pairwise pass) of the last ``settled`` call
+    _settled_pass: tuple[MotionParams, Detections, np.ndarray] | None = None
 
     def settled(
         self,
@@ -125,14 +127,12 @@ class MultiFrameAssociator(TrackingAssociator):
     def _reused_pass(self, d: Detections, params: MotionParams) -> np.ndarray | None:
         """The pairwise pass that ``settled`` last made, if it made it for ``params`` (the
         same object) and detections equal to ``d``; else None."""
-        last = getattr(self, '_settled_pass', None)
+        last = self._settled_pass
         if last is None or last[0] is not params:
             return None
         seen = last[1]
-        same = len(seen) == len(d) and all(
-            np.array_equal(getattr(seen, f), getattr(d, f))
-            for f in ('sensor_index', 'stamp', 'velocity')
-        )
+        fields = ('sensor_index', 'stamp', 'velocity')
+        same = all(np.array_equal(getattr(seen, f), getattr(d, f)) for f in fields)
         return last[2].copy() if same else None
 
     @staticmethod
