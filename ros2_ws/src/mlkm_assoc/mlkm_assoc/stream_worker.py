@@ -83,6 +83,8 @@ def prestart() -> None:
     """Fork a tracker process and its solver process now, to be taken by the first
     TrackerProcess. Call it before ``rclpy.init`` (no ROS threads yet): the children get every
     module the node imported, so they are ready at once instead of importing for seconds."""
+    import scipy.optimize  # noqa: F401  (the linking and calibration import it on first use)
+
     import mlkm_core.streaming  # noqa: F401  (the tracker and the solves need them)
     import mlkm_core.streaming.solve  # noqa: F401
     from mlkm_ros import conversions  # noqa: F401  (encode_tracks)

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import min_weight_full_bipartite_matching
-from sklearn.metrics import adjusted_rand_score
 
 from mlkm_core.types import Detections
 
@@ -152,6 +151,8 @@ def score(detections: Detections, labels: np.ndarray) -> Score:
     singletons = np.arange(n, dtype=np.int64) + int(max(target.max(initial=0), 0)) + 1
     truth_classes = np.where(true, target, singletons)
     label_classes = np.where(assigned, labels, singletons + int(labels.max(initial=0)) + 1)
+    from sklearn.metrics import adjusted_rand_score  # a second to import: on first use
+
     ari = float(adjusted_rand_score(truth_classes, label_classes)) if n else 1.0
 
     return Score(

@@ -17,7 +17,6 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from scipy.optimize import nnls
 
 from mlkm_core.associators.count_curves import beside, with_count_curves
 from mlkm_core.associators.delays import estimate_delay, estimate_gap_spread, gap_links
@@ -51,6 +50,8 @@ def _variogram_fit(
 ) -> tuple[float, float, float] | None:
     """(nugget sigma_v, sill sigma, range L) of the speed variogram over same-track pairs;
     of each speed's departure from the ``traffic``'s where it is given."""
+    from scipy.optimize import nnls  # half a second to import: on first use
+
     keep = labels >= 0
     if keep.sum() < 10:
         return None

@@ -18,7 +18,6 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
-from sklearn.cluster import KMeans
 
 from mlkm_core.associators.base import Associator, canonical_order, register
 from mlkm_core.preprocess import preprocess
@@ -35,6 +34,8 @@ def kmeans_labels(
     k = max(1, min(int(k), n))
     if k == n:
         return np.arange(n, dtype=np.int64), points.copy()
+    from sklearn.cluster import KMeans  # scikit-learn takes a second to import: on first use
+
     km = KMeans(n_clusters=k, init=init, n_init=1, random_state=seed).fit(points)
     return km.labels_.astype(np.int64), km.cluster_centers_
 

@@ -29,7 +29,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -61,6 +60,10 @@ def match_sparse(
     rows, cols, weight = rows[keep], cols[keep], weight[keep]
     if rows.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    # scipy.optimize takes half a second to import: on first use, not in every process that
+    # imports the associators (sources, scorer)
+    from scipy.optimize import linear_sum_assignment
+
     # keep the best edge per (row, col) pair
     graph = coo_matrix(
         (np.ones(rows.size), (rows, n_rows + cols)), shape=(n_rows + n_cols, n_rows + n_cols)

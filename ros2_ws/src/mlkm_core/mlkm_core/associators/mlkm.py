@@ -79,7 +79,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from sklearn.cluster import KMeans
 
 from mlkm_core.associators.base import Associator, Session, canonical_order, register
 from mlkm_core.associators.kmeans import kmeans_labels
@@ -243,6 +242,8 @@ def match_segments(parts: list[SegmentClusters], ref_position: float) -> list[np
     if n_seeds == points.shape[0]:
         tracks = np.arange(n_seeds, dtype=np.int64)
     else:
+        from sklearn.cluster import KMeans  # a second to import: on first use
+
         km = KMeans(n_clusters=n_seeds, init=seeds, n_init=1).fit(points)
         tracks = km.labels_.astype(np.int64)
     return np.split(tracks, np.cumsum(sizes)[:-1])
