@@ -13,7 +13,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from mlkm_core.simulator import SimConfig, simulate_stream, stream_layout
+from mlkm_core.simulator import SimConfig
+from mlkm_core.simulator_stream import simulate_stream, stream_layout
 from mlkm_ros import conversions as conv
 from mlkm_ros import qos
 from mlkm_ros.params import ParameterError

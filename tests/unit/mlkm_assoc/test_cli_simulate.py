@@ -8,7 +8,8 @@ import pytest
 from mlkm_assoc import cli
 from mlkm_core.csvio import read_detections
 from mlkm_core.layout_file import read_layout_file
-from mlkm_core.simulator import SimConfig, simulate_episodes, simulate_stream, stream_origin
+from mlkm_core.simulator import SimConfig, simulate_episodes, stream_origin
+from mlkm_core.simulator_stream import simulate_stream
 
 #: A seeded closed road with clutter: 2 episodes of 50 vehicles, 20 stations.
 SEEDED = ['--seed', '3', '--episodes', '2', '--miss-rate', '0.05']

@@ -48,14 +48,8 @@ from mlkm_core.cli_args import (
 )
 from mlkm_core.csvout import POSITION_DECIMALS, write_detections
 from mlkm_core.layout_file import LayoutFileError, RoadLayout, write_layout_file
-from mlkm_core.simulator import (
-    SimConfig,
-    iter_episodes,
-    shift,
-    simulate_stream,
-    stream_layout,
-    stream_origin,
-)
+from mlkm_core.simulator import SimConfig, iter_episodes, shift, stream_origin
+from mlkm_core.simulator_stream import simulate_stream, stream_layout
 from mlkm_core.types import FALSE_ALARM, Detections, Layout
 
 PROG = 'mlkm simulate'

@@ -15,7 +15,7 @@ Stamps are the core's passage times moved by a whole number of seconds
 be negative); relative times, hence every association result, are the core's.
 
 ``mode:=continuous``: an open road instead of episodes. Vehicles of the same model enter for
-ever (``mlkm_core.simulator.simulate_stream``: the paper's U(t_min, t_max) spacing, or a
+ever (``mlkm_core.simulator_stream.simulate_stream``: the paper's U(t_min, t_max) spacing, or a
 Poisson stream at ``arrival_rate``), stamps start at 0 and never go down, no EpisodeInfo is
 published (there is no /road/episode publisher at all, so an association node in mode auto
 tracks the stream), ground truth carries episode 0. ``duration`` [s] of stamp time ends it
@@ -29,14 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from mlkm_core.simulator import (
-    StreamDetection,
-    simulate_episodes,
-    simulate_stream,
-    stream_layout,
-    stream_origin,
-    time_window,
-)
+from mlkm_core.simulator import simulate_episodes, stream_origin, time_window
+from mlkm_core.simulator_stream import StreamDetection, simulate_stream, stream_layout
 from mlkm_core.types import Dataset
 from mlkm_ros import conversions as conv
 from mlkm_ros import lifecycle
