@@ -280,7 +280,7 @@ def test_stream_launch_scores_every_detection_and_stops_on_ctrl_c(
         stream = launch(
             ros2_env, tmp_path, 'stream',
             'source:=sumo', 'scenario:=ramps', 'stations_at:=300,700,1100,1550',
-            'duration:=60.0', 'lag:=10.0', 'window:=30.0', 'record:=false',
+            'duration:=60.0', 'lag:=10.0', 'quiet_flush:=2.0', 'window:=30.0', 'record:=false',
         )  # fmt: skip
         published: list[int] = []
         why = collector.spin_until(
@@ -315,8 +315,8 @@ def test_shards_launch_merges_two_shards_scores_every_detection_and_stops_on_ctr
     try:
         shards = launch(
             ros2_env, tmp_path, 'shards',
-            'shards:=2', 'stations:=10', 'duration:=60.0', 'lag:=10.0', 'window:=30.0',
-            'record:=false',
+            'shards:=2', 'stations:=10', 'duration:=60.0', 'lag:=10.0', 'quiet_flush:=2.0',
+            'window:=30.0', 'record:=false',
         )  # fmt: skip
         published: list[int] = []
         why = collector.spin_until(

@@ -37,6 +37,10 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 STATIONS, START, END = 20, 50.0, 450.0
 SHARDS = 3
 LAG = 30.0
+#: [s] of quiet wall time before the shards flush the road, once the log (replayed as fast as
+#: delivery allows) has ended; far less than the lag of stamps, far more than any pause of
+#: the replay
+QUIET_FLUSH = 8.0
 METHOD = 'multiframe'
 DATA = Path(__file__).resolve().parents[2] / 'data' / 'ngsim_i80' / 'i80_trajectories_a.csv.gz'
 NS_PER_S = 1_000_000_000
@@ -148,6 +152,7 @@ def test_three_shards_equal_the_offline_shards_and_one_node(
                 'mlkm_assoc', 'association_node', '--ros-args',
                 '-r', f'__ns:=/shard_{k}', '-p', 'source_namespace:=/',
                 '-p', 'mode:=stream', '-p', f'stream_method:={METHOD}', '-p', f'lag:={LAG}',
+                '-p', f'quiet_flush:={QUIET_FLUSH}',
                 '-p', f'shard_count:={SHARDS}', '-p', f'shard_index:={k}',
                 '-p', 'wait_for_track_subscribers:=2',
             )

@@ -26,6 +26,8 @@ from rosbag_mcap.reader import BagReader
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 LAG = 15.0
+#: [s] of quiet wall time before the node flushes the road once SUMO (as fast as it runs) ended
+QUIET_FLUSH = 5.0
 #: Stations about 400 m apart on the first 1.6 km, an on-ramp (1.2 km) between the last two.
 STATIONS = '300,700,1100,1550'
 
@@ -92,6 +94,8 @@ def test_live_stream_commits_what_the_offline_cli_commits(
             '-p',
             f'lag:={LAG}',
             '-p',
+            f'quiet_flush:={QUIET_FLUSH}',
+            '-p',
             'diagnostics_period:=0.5',
         )
         recorder = ros_process(
@@ -132,7 +136,8 @@ def test_live_stream_commits_what_the_offline_cli_commits(
         )
         assert spin_until(listener.executor, lambda: sumo.proc.poll() is not None, 240.0)
         assert sumo.proc.returncode == 0, sumo.output()
-        # The road falls quiet: after LAG seconds the node flushes; every link is committed.
+        # The road falls quiet: after QUIET_FLUSH seconds the node flushes; every link is
+        # committed.
         assert spin_until(
             listener.executor,
             lambda: (

@@ -104,7 +104,9 @@ def consumer_view(messages: list[TrackArray]) -> dict[int, tuple[int, int]]:
     return view
 
 
-def start_node(ros_process):
+def start_node(ros_process, quiet_flush: float = 0.0):
+    """The node in stream mode; its road flushed after ``quiet_flush`` [s] of quiet wall
+    time (0: after the lag)."""
     return ros_process(
         'mlkm_assoc',
         'association_node',
@@ -113,6 +115,8 @@ def start_node(ros_process):
         'mode:=stream',
         '-p',
         f'lag:={LAG}',
+        '-p',
+        f'quiet_flush:={quiet_flush}',
     )
 
 
@@ -140,7 +144,7 @@ def test_a_restarted_node_numbers_new_tracks_and_ends_the_old_ones(
         os.killpg(first.pid, signal.SIGKILL)  # the node and its tracker and solver processes
         assert first.wait(30.0) is not None
 
-        start_node(ros_process)
+        start_node(ros_process, quiet_flush=2.0)  # its road is flushed soon after the vehicle
         # every sensor topic and the track topic have the restarted node's endpoints
         wait(lambda: {topic for topic, _ in src.endpoints() - old} == {*NAMES, 'tracks'})
         n_before = len(src.tracks)  # what the dead node published (the new one: no tracks yet)

@@ -341,3 +341,23 @@ def test_markers_tell_committed_from_revisable_tracks(harness) -> None:
     # A solid between stations c and d (6 s at 12.5 m/s past c), B translucent at b
     assert any(sorted(d.values())[1][:2] == (375.0, True) for d in both)
     assert any(sorted(d.values())[0][:2] == (200.0, False) for d in both)
+
+
+def test_quiet_flush_flushes_a_quiet_road_long_before_the_lag(harness) -> None:
+    """A log replayed faster than real time: ``quiet_flush`` 0.5 s, lag 600 s. The road's
+    tracks become FINAL half a second of quiet wall time after the last detection (with the
+    flush after the lag, they would stay open for ten minutes)."""
+    h = harness(mode='stream', lag=600.0, quiet_flush=0.5)
+    h.start()
+    rows = passages()
+    for s, ns, v, _, lane, length in rows:
+        h.detect(s, ns, v, lane, length)
+    keys = {(IDS[s], lane, ns) for s, ns, _, _, lane, _ in rows}
+    h.wait(
+        lambda: all(h.latest().get(k, (-1, -1))[1] == Track.STATUS_FINAL for k in keys),
+        timeout=120.0,
+    )
+    assert conv.time_to_ns(h.tracks[-1].committed_until) > max(ns for _, ns, *_ in rows)
+    assert len({h.latest()[k][0] for k in keys}) == 3  # one track per vehicle
+    h.wait(lambda: h.diag.get('stream.quiet_flush') == '0.5')
+    assert h.diag['stream.lag'] == '600.0'

@@ -84,6 +84,7 @@ class AssociationNode(Node):
         )
         mode, lag, stream_method = (values.pop(name) for name in STREAM_PARAMS)
         max_uncommitted: int = values.pop('max_uncommitted')
+        quiet_flush: float = values.pop('quiet_flush')
         wait_for_track_subscribers: int = values.pop('wait_for_track_subscribers')
         markers = [values.pop(name) for name in MARKER_PARAMS]
         self._source_ns: str = values.pop('source_namespace')
@@ -142,6 +143,7 @@ class AssociationNode(Node):
             lag,
             stream_method,
             max_uncommitted=max_uncommitted,
+            quiet_flush=quiet_flush,
             on_publish=self._markers.tracks,
             publish_handoff=None if self._shards is None else self._shards.publish,
         )

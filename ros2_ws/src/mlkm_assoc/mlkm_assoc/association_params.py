@@ -25,6 +25,7 @@ NODE_PARAMS = (
     'diagnostics_window',
     'warn_rejected_fraction',
     'max_uncommitted',
+    'quiet_flush',
     'wait_for_track_subscribers',
     'source_namespace',
     *STREAM_PARAMS,
@@ -179,10 +180,21 @@ SPECS = [
         _STREAM.lag,
         'stream mode: a link may be revised until the newest stamp is this far past the '
         "detection's stamp, then it is committed; a road without detections for this long "
-        '(wall time) is flushed [s]',
+        '(wall time) is flushed, unless quiet_flush says otherwise [s]',
         1e-3,
         1e6,
         check=positive,
+        read_only=True,
+    ),
+    ParamSpec(
+        'quiet_flush',
+        0.0,
+        'stream mode: a road without detections for this long (wall time) is flushed: every '
+        'link committed, every track FINAL; shorter than the lag for a log replayed faster '
+        'than real time, where a quiet second of wall time is many seconds of stamps; 0 = '
+        'the lag [s]',
+        0.0,
+        1e6,
         read_only=True,
     ),
     _method_spec(

@@ -46,6 +46,7 @@ class ModeSwitch:
         lag: float,
         method: str,
         max_uncommitted: int = 0,
+        quiet_flush: float = 0.0,
         on_publish: Callable[[bytes], None] | None = None,
         publish_handoff: Callable[[bytes], None] | None = None,
     ) -> None:
@@ -57,6 +58,7 @@ class ModeSwitch:
         self._lag = lag
         self._method = method
         self._max_uncommitted = max_uncommitted
+        self._quiet_flush = quiet_flush
         self._episode_topic = node.resolve_topic_name(qos.EPISODE_TOPIC)
         self.mode: str | None = None if mode == 'auto' else mode
         self._layout: tuple | None = None
@@ -192,6 +194,7 @@ class ModeSwitch:
             seed=cfg.seed,
             max_buffered=cfg.max_buffered,
             max_uncommitted=self._max_uncommitted,
+            quiet_flush=self._quiet_flush,
         )
         log = leveled_log(self._node.get_logger())
         context = self._node.context

@@ -8,10 +8,10 @@ answers with the tracks it changed. A publisher thread publishes each answer on 
 (TrackArray MODE_STREAM) and keeps the statistics, all in ring buffers.
 
 Detections are checked and numbered by :class:`~mlkm_assoc.stream_ingest.StreamIngest`.
-A road that falls quiet (no detection for ``lag`` seconds of wall time) is flushed: every
-link is committed and every track becomes FINAL. A new layout flushes the old road too.
-Detections that arrive before the layout are held (up to ``max_buffered``) and checked once
-it is known.
+A road that falls quiet (no detection for ``quiet_flush`` seconds of wall time, by default
+the ``lag``) is flushed: every link is committed and every track becomes FINAL. A new layout
+flushes the old road too. Detections that arrive before the layout are held (up to
+``max_buffered``) and checked once it is known.
 """
 
 from __future__ import annotations
@@ -47,11 +47,17 @@ class StreamSettings:
     """Stream mode's settings: the tracker's and the node's own bound on held detections."""
 
     method: str  # associator of the tracker
-    lag: float  # [s] stamp time a link stays revisable; also the quiet time before a flush
+    lag: float  # [s] stamp time a link stays revisable
     segment_size: int
     seed: int
     max_buffered: int  # detections held before the layout, or queued for the tracker [-]
     max_uncommitted: int = 0  # the tracker's backlog bound (StreamConfig), 0 = none [-]
+    quiet_flush: float = 0.0  # [s] wall time without detections before a flush; 0 = the lag
+
+    @property
+    def quiet_after(self) -> float:
+        """[s] of wall time a road stays quiet before it is flushed."""
+        return self.quiet_flush if self.quiet_flush > 0 else self.lag
 
     def tracker(self) -> TrackerSettings:
         """The settings the tracker process builds its trackers from."""
@@ -132,9 +138,9 @@ class StreamMode:
         self._process.put(('tick', now))
 
     def tick(self, now: float) -> None:
-        """Flush a road that has been quiet for ``lag`` seconds of wall time."""
+        """Flush a road that has been quiet for ``quiet_after`` seconds of wall time."""
         last = self.ingest.last_rx
-        if last is None or last == self._flushed_at or now - last < self.settings.lag:
+        if last is None or last == self._flushed_at or now - last < self.settings.quiet_after:
             return
         self.flush(now)
 
@@ -198,6 +204,7 @@ class StreamMode:
             last = self.last
         values: dict[str, object] = {
             'stream.lag': self.settings.lag,
+            'stream.quiet_flush': self.settings.quiet_after,
             'stream.method': self.settings.method,
             'stream.held_before_layout': self.ingest.held,
             'stream.tracker_ready': self._process.ready,

@@ -25,6 +25,7 @@ ARGUMENTS = (
     ('mode', 'auto', 'association and scoring: auto (follow the bag), episodes or stream [-]'),
     ('stream_method', 'multiframe', 'associator of association_node in stream mode [-]'),
     ('lag', '15.0', 'stream: links revisable until the newest stamp is this far past [s]'),
+    ('quiet_flush', '0.0', 'stream: flush a road quiet for this long (wall time); 0 = lag [s]'),
     ('window', '60.0', 'stream: scoring window of stamp time [s]'),
 )
 
@@ -56,6 +57,7 @@ def nodes(context):
                 'method': arg['method'],
                 'stream_method': arg['stream_method'],
                 'lag': float(arg['lag']),
+                'quiet_flush': float(arg['quiet_flush']),
             },
         ),
         node(

@@ -35,6 +35,7 @@ ARGUMENTS = (
     ('start_delay', '1.0', 'pause of the source after its subscribers matched [s]'),
     ('method', 'multiframe', 'stream associator of every shard (stream_method) [-]'),
     ('lag', '30.0', 'links revisable until the newest stamp is this far past [s]'),
+    ('quiet_flush', '0.0', 'flush a road quiet for this long (wall time); 0 = the lag [s]'),
     ('window', '60.0', 'scoring window of stamp time [s]'),
     *RECORD_ARGUMENTS,
 )
@@ -56,6 +57,7 @@ def nodes(context):
                 'mode': 'stream',
                 'stream_method': arg['method'],
                 'lag': float(arg['lag']),
+                'quiet_flush': float(arg['quiet_flush']),
                 'shard_count': count,
                 'shard_index': k,
                 'source_namespace': '/',

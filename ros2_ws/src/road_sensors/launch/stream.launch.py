@@ -8,8 +8,8 @@ The graph of ``make demo-stream``: ``sumo_sensors`` in continuous mode on a SUMO
 ``scorer_node`` in stream mode (accuracy and revision rate per ``window`` of stamp time on
 /mlkm/score), and ``bag_recorder``. Each node reads its ``config/<node>.param.yaml`` and then the
 arguments below. The source exits after ``duration`` simulated seconds; the association node
-flushes the quiet road ``lag`` seconds later and the scorer scores the last window; the other
-nodes stay up until Ctrl-C, which closes the bag.
+flushes the quiet road ``lag`` (or ``quiet_flush``) seconds later and the scorer scores the
+last window; the other nodes stay up until Ctrl-C, which closes the bag.
 ``ros2 launch road_sensors stream.launch.py -s`` lists the arguments.
 """
 
@@ -38,6 +38,7 @@ ARGUMENTS = (
     ('start_delay', '1.0', 'pause of the source after its subscribers matched [s]'),
     ('method', 'multiframe', 'stream associator of association_node (stream_method) [-]'),
     ('lag', '30.0', 'links revisable until the newest stamp is this far past [s]'),
+    ('quiet_flush', '0.0', 'flush a road quiet for this long (wall time); 0 = the lag [s]'),
     ('window', '30.0', 'scoring window of stamp time [s]'),
     *RECORD_ARGUMENTS,
 )
@@ -68,7 +69,12 @@ def nodes(context):
         association_node(
             arg,
             1 + record,
-            {'mode': 'stream', 'stream_method': arg['method'], 'lag': float(arg['lag'])},
+            {
+                'mode': 'stream',
+                'stream_method': arg['method'],
+                'lag': float(arg['lag']),
+                'quiet_flush': float(arg['quiet_flush']),
+            },
         ),
         node(arg, 'mlkm_assoc', 'scorer_node', {'mode': 'stream', 'window': float(arg['window'])}),
         node(arg, 'road_sensors', executable, source),
