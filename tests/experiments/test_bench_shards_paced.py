@@ -31,6 +31,13 @@ def test_a_rate_is_sustained_only_when_every_node_keeps_every_bound(change, ok) 
     assert paced.sustained(nodes, 400.0) is ok
 
 
+def test_the_commit_lag_bound_follows_the_nodes_lag() -> None:
+    behind = {'/association_node': {**GOOD, 'commit_lag_at_end': 25.0}}
+    assert paced.sustained(behind, 400.0)  # 25 s behind at a 30 s lag: kept up
+    assert not paced.sustained(behind, 400.0, lag=3.0)  # at 3 s: fell behind (bound 24 s)
+    assert paced.commit_lag_max(3.0) == 3.0 + 2 * paced.SOLVE_INTERVAL + paced.REORDER
+
+
 def test_the_handoff_clock_times_each_offer_to_its_continuation(monkeypatch) -> None:
     from road_sensor_msgs.msg import Track, TrackHandoff
 
@@ -109,11 +116,13 @@ def test_report_lines_name_the_highest_rate_and_its_figures() -> None:
 @pytest.mark.slow
 @pytest.mark.ros
 def test_two_shards_paced_over_dds_measure_and_hand_tracks_over(tmp_path, ros_domain_id) -> None:
-    data = {'scenario': 'highway', 'stations': 20, 'duration': 300.0, 'seed': 3}
+    # 200 s of a highway (1869 detections, 19 s at 100 det/s) and a 10 s lag: the run ends a
+    # lag of wall time after the source, once the quiet road is flushed
+    data = {'scenario': 'highway', 'stations': 20, 'duration': 200.0, 'seed': 3}
     files = paced.write_log(tmp_path, tmp_path / 'sumo_cache', data)
-    r = paced.run_rate(ros_domain_id, tmp_path / 'run', files, 2, 100.0)
+    r = paced.run_rate(ros_domain_id, tmp_path / 'run', files, 2, 100.0, lag=10.0)
     # the measurements are real ones (whether 100 det/s is sustained depends on the load)
-    assert r['sustained'] == paced.sustained(r['nodes'], 100.0)
+    assert r['lag'] == 10.0 and r['sustained'] == paced.sustained(r['nodes'], 100.0, 10.0)
     assert sum(n['received'] for n in r['nodes'].values()) > files['detections']  # margins
     for n in r['nodes'].values():
         assert n['cores'] > 0 and 0 < n['latency_p50'] <= n['latency_p95']
@@ -126,7 +135,7 @@ def test_two_shards_paced_over_dds_measure_and_hand_tracks_over(tmp_path, ros_do
     ).detections  # fmt: skip
     first = split_road(data['stations'], 2)[1].own[0]
     crossing = set(d.target[d.sensor_index == first - 1]) & set(d.target[d.sensor_index == first])
-    assert len(crossing) > 100
+    assert len(crossing) > 80
     assert 0.95 * len(crossing) <= r['continued'] <= len(crossing)
     assert 0 < r['handoff_delay']['p50'] <= r['handoff_delay']['p95']
     assert 0 < r['handoff_transit']['p50'] < 1.0
