@@ -116,8 +116,8 @@ def test_report_lines_name_the_highest_rate_and_its_figures() -> None:
 @pytest.mark.slow
 @pytest.mark.ros
 def test_two_shards_paced_over_dds_measure_and_hand_tracks_over(tmp_path, ros_domain_id) -> None:
-    # 200 s of a highway (1869 detections, 19 s at 100 det/s) and a 10 s lag: the run ends a
-    # lag of wall time after the source, once the quiet road is flushed
+    # 200 s of a highway (1869 detections, 19 s at 100 det/s) and a 10 s lag: the run ends
+    # once the quiet road is flushed, 10 s of wall time after the source
     data = {'scenario': 'highway', 'stations': 20, 'duration': 200.0, 'seed': 3}
     files = paced.write_log(tmp_path, tmp_path / 'sumo_cache', data)
     r = paced.run_rate(ros_domain_id, tmp_path / 'run', files, 2, 100.0, lag=10.0)

@@ -25,7 +25,7 @@ difference, in wall seconds, is how long the track's identity stays open downstr
 vehicle's travel through the margin and the commit lag, at the paced rate, plus the shards'
 processing). Its transit is the message's arrival minus its ``header.stamp`` (the shard's
 clock, the same host here). The run ends once every node flushed its quiet road, so that
-every continuation is counted.
+every continuation is counted (``QUIET_FLUSH`` of wall time after the last detection).
 """
 
 from __future__ import annotations
@@ -48,6 +48,9 @@ RATES = (150.0, 300.0, 600.0, 1200.0, 2400.0)
 DATA = {'scenario': 'highway', 'stations': 40, 'duration': 900.0, 'seed': 1}
 METHOD, LAG, SOLVE_INTERVAL, REORDER = 'multiframe', 30.0, 10.0, 1.0
 DELIVERY_MIN = 0.9
+#: [s] of quiet wall time after which the nodes flush the road once the source ended (the
+#: run's end; the lag of stamps would be 30 s of waiting per run)
+QUIET_FLUSH = 10.0
 
 
 def commit_lag_max(lag: float = LAG) -> float:
@@ -105,7 +108,7 @@ def start_nodes(graph, count: int, lag: float = LAG) -> dict[str, object]:
     """The association nodes (by node name) and, with shards, ``track_merge``."""
     common = [
         '-p', 'mode:=stream', '-p', f'stream_method:={METHOD}', '-p', f'lag:={lag}',
-        '-p', 'diagnostics_period:=0.5',
+        '-p', f'quiet_flush:={min(QUIET_FLUSH, lag)}', '-p', 'diagnostics_period:=0.5',
     ]  # fmt: skip
     if count == 1:
         proc = graph.start('association_node', 'mlkm_assoc', 'association_node', '--ros-args',
@@ -130,8 +133,8 @@ class HandoffClock:
         self.offered: dict[int, float] = {}  # upstream track -> first offer's arrival [s]
         self.delays: list[float] = []  # [s] offer -> continuation
         self.transits: list[float] = []  # [s] header.stamp -> arrival
-        # continuations after the source ended (decided at the quiet road's flush, a lag of
-        # wall time later): counted, their delay not timed
+        # continuations after the source ended (decided at the quiet road's flush, QUIET_FLUSH
+        # of wall time later): counted, their delay not timed
         self.source_ended = math.inf  # [s] time.time()
         self.late = 0
 
@@ -210,7 +213,7 @@ def run_rate(
             at_end = {k: _num(v, 'stream.commit_lag') for k, v in values.items()}
 
             def flushed() -> bool:
-                # every detection through the tracker and the quiet road flushed (``lag`` of
+                # every detection through the tracker and the quiet road flushed (QUIET_FLUSH of
                 # wall time after the last one): every continuation is decided and counted
                 take()
                 return len(values) == count and all(
