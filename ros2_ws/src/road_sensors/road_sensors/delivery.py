@@ -34,6 +34,11 @@ class DeliveryConfig:
 
 #: What the descriptions of both sources say alike.
 _WAIT_TIMEOUT = 'give up waiting for subscribers after this long and fail; 0 = wait forever [s]'
+_START_DELAY = (
+    'extra pause after the subscribers matched, before the first message: a count met says '
+    'the source matched them, and a volatile subscriber drops what arrives before it has '
+    'matched the source in turn [s]'
+)
 
 
 def delivery_specs(text: dict[str, str]) -> list[ParamSpec]:
@@ -64,7 +69,7 @@ def delivery_specs(text: dict[str, str]) -> list[ParamSpec]:
             read_only=True,
         ),
         ParamSpec('wait_timeout', 60.0, _WAIT_TIMEOUT, 0.0, 1e9, read_only=True),
-        ParamSpec('start_delay', 0.0, text['start_delay'], 0.0, 1e6, read_only=True),
+        ParamSpec('start_delay', 0.0, _START_DELAY, 0.0, 1e6, read_only=True),
         ParamSpec('ack_timeout', 60.0, text['ack_timeout'], 0.0, 1e9, read_only=True),
         ParamSpec('keep_running', False, text['keep_running'], read_only=True),
     ]

@@ -106,8 +106,6 @@ _NODE_SPECS = [
             'has at least this many subscribers (association node, recorder, ...) [-]',
             'wait_for_truth_subscribers': 'before the first episode, wait until '
             '/road/ground_truth has at least this many subscribers (scorer, recorder, ...) [-]',
-            'start_delay': 'extra pause after the subscribers matched, before the first episode '
-            '[s]',
             'ack_timeout': 'at each episode end, wait at most this long for every subscriber to '
             'acknowledge every message [s]',
             'keep_running': 'stay up after the last episode (the latched layout stays '

@@ -121,7 +121,6 @@ SPECS = [
             'least this many subscribers [-]',
             'wait_for_truth_subscribers': 'before the start, wait until /road/ground_truth has at '
             'least this many subscribers [-]',
-            'start_delay': 'extra pause after the subscribers matched [s]',
             'ack_timeout': 'at the end, wait at most this long for every subscriber to '
             'acknowledge every message [s]',
             'keep_running': 'stay up after the last message (the latched layout stays '
