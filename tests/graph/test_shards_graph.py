@@ -175,9 +175,6 @@ def test_three_shards_equal_the_offline_shards_and_one_node(
         '-p', f'log:={log}', '-p', f'layout:={layout}', '-p', 'mode:=continuous',
         '-p', 'wait_for_subscribers:=1', '-p', 'keep_running:=true',
         '-p', f'wait_for_subscriptions:={sum(wanted.values())}',
-        # as the launch files: the counts say the source matched the shards; a busy shard
-        # matches the source a moment later and drops, being volatile, what came before
-        '-p', 'start_delay:=1.0',
     )  # fmt: skip
     procs = [*shards, merge, source]
     topics_ok = spin_until(

@@ -133,10 +133,6 @@ def test_live_stream_commits_what_the_offline_cli_commits(
             'wait_for_subscribers:=2',
             '-p',
             'wait_for_truth_subscribers:=1',
-            # the counts say the source matched its subscribers, which match it a moment
-            # later (volatile, they drop what came before): as the launch files
-            '-p',
-            'start_delay:=1.0',
         )
         assert spin_until(listener.executor, lambda: sumo.proc.poll() is not None, 240.0)
         assert sumo.proc.returncode == 0, sumo.output()

@@ -69,7 +69,7 @@ def delivery_specs(text: dict[str, str]) -> list[ParamSpec]:
             read_only=True,
         ),
         ParamSpec('wait_timeout', 60.0, _WAIT_TIMEOUT, 0.0, 1e9, read_only=True),
-        ParamSpec('start_delay', 0.0, _START_DELAY, 0.0, 1e6, read_only=True),
+        ParamSpec('start_delay', 1.0, _START_DELAY, 0.0, 1e6, read_only=True),
         ParamSpec('ack_timeout', 60.0, text['ack_timeout'], 0.0, 1e9, read_only=True),
         ParamSpec('keep_running', False, text['keep_running'], read_only=True),
     ]
