@@ -2,8 +2,10 @@
 
 import pytest
 
-from mlkm_experiments.bench.stream import ingest_rate, latency_ok, memory_verdict
+from mlkm_experiments.bench.stream import latency_ok
+from mlkm_experiments.bench.stream_graph import ingest_rate
 from mlkm_experiments.bench.stream_lag import lag_verdict
+from mlkm_experiments.bench.stream_memory import memory_verdict, tracker_progress
 from mlkm_experiments.bench.stream_report import report_lines
 from mlkm_experiments.bench.targets import stream_targets
 
@@ -11,10 +13,19 @@ MIB = 2**20
 
 
 def rss_run(node_mib, tracker_mib):
-    """One RSS sample per 50 detections through the tracker, 590 in all (the node received
-    all 600 at once; the last sample at 550)."""
+    """One RSS sample a minute of stamp time the tracker committed (0 to 11 min), 590
+    detections through it (the node received all 600 at once, the tracker took them all at
+    the start)."""
     return [
-        {'t': float(i), 'received': 600, 'pushed': 50 * i, 'node': n * MIB, 'tracker': k * MIB}
+        {
+            't': float(i),
+            'received': 600,
+            'pushed': 590,
+            'committed': 1000.0 + 60.0 * i,
+            'working_set': 590 - 50 * i,
+            'node': n * MIB,
+            'tracker': k * MIB,
+        }
         for i, (n, k) in enumerate(zip(node_mib, tracker_mib, strict=True))
     ]
 
@@ -58,6 +69,21 @@ def test_memory_passes_on_a_flat_curve_after_the_warm_up():
     assert v['rss_total']['growth'] == pytest.approx(5 / 120)
     assert v['nothing_lost'] is True
     assert v['ok'] is True
+
+
+def test_progress_is_the_trackers_committed_time_not_what_it_was_given():
+    # the node takes a backlog at once and the tracker commits it later: a sample before the
+    # first commit is at progress 0, the others run from the first commit to the last
+    samples = [{'committed': None}, {'committed': 100.0}, {'committed': 400.0}, {}]
+    samples.append({'committed': 1000.0})
+    assert tracker_progress(samples) == [0.0, 0.0, pytest.approx(1 / 3), 0.0, 1.0]
+    assert tracker_progress([{'committed': None}, {'committed': 5.0}]) is None
+    # a backlog working through: RSS held by the backlog (high, then flat) passes, the
+    # working set's peak is reported
+    node = [100] * 12
+    v = memory_verdict(rss_run(node, [300] + [400] * 11), COUNTS, 600)
+    assert v['rss_tracker']['growth'] == 0.0 and v['rss_ok'] is True
+    assert v['working_set_max'] == 590
 
 
 def test_memory_fails_on_growth_and_on_a_lost_detection():

@@ -83,19 +83,20 @@ def plot_stream(out_dir: Path, stream: dict) -> list[str]:
     """``stream_lag.png`` (accuracy against the commit lag) and ``stream_rss.png`` (resident
     set of the association node and its tracker process over simulated time)."""
     from .stream_lag import plot_lag
+    from .stream_memory import tracker_progress
 
     files = [f for f in [plot_lag(out_dir, stream.get('lag', {}))] if f]
     mem = stream.get('memory', {})
     pts = [s for s in mem.get('samples', []) if s['node']]
-    final = (mem.get('counts') or {}).get('pushed')
-    if not pts or not final:
+    prog = tracker_progress(pts)
+    if prog is None:
         return files
     import matplotlib
 
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    x = [mem['duration'] / 60 * s.get('pushed', s['received']) / final for s in pts]
+    x = [mem['duration'] / 60 * p for p in prog]
     fig, ax = plt.subplots(figsize=(8, 4.5))
     node = [s['node'] / 2**20 for s in pts]
     trk = [(s['tracker'] or 0) / 2**20 for s in pts]
@@ -104,7 +105,7 @@ def plot_stream(out_dir: Path, stream: dict) -> list[str]:
     ax.plot(x, [a + b for a, b in zip(node, trk, strict=True)], '-', lw=1.5, label='sum')
     for f in (1 / 6, 2 / 6, 5 / 6):
         ax.axvline(f * mem['duration'] / 60, color='grey', ls=':', lw=1)
-    ax.set_xlabel('simulated time [min] (share of the detections through the tracker x duration)')
+    ax.set_xlabel("simulated time [min] (the tracker's committed stamp time)")
     ax.set_ylabel('resident set [MiB]')
     ax.set_ylim(bottom=0)
     ax.set_title(f'Stream mode memory: {mem.get("scenario", "")}', fontsize=9)

@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from .common import Log
-from .stream import LATENCY_P95_MAX, _num, _sample, descendants, ingest_rate
+from .stream import LATENCY_P95_MAX
+from .stream_graph import _num, _sample, descendants, ingest_rate
 
 CONFIGS = (1, 2, 4)
 #: Paced rates tried in turn [detections/s].

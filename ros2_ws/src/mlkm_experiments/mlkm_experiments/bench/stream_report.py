@@ -99,9 +99,9 @@ def report_lines(stream: dict) -> list[str]:
             f'{mem["wall_s"] / 60:.1f} min wall (a {p["duration"] / 60:.0f}-minute probe took '
             f'{p["wall_s"]:.0f} s: an hour extrapolates to {p["hour_estimate_s"] / 60:.1f} '
             'min). VmRSS of the node and of its tracker process sampled every second; progress '
-            '= the share of the detections through the tracker (constant demand); early: '
-            'median over the second sixth, late: median over the last sixth; passes at a '
-            'growth <= 10 %.',
+            "= the tracker's committed stamp time; early: median over the second sixth, late: "
+            'median over the last sixth; passes at a growth <= 10 %. Largest working set: '
+            f'{mem.get("working_set_max", "—")} detections.',
             '',
             '| process | RSS early [MiB] | RSS late [MiB] | growth |',
             '| --- | --- | --- | --- |',
