@@ -7,7 +7,7 @@ the node takes the hour in under a minute and the tracker then works through a b
 most of it, so the resident set would show the backlog, not how memory behaves on a road that
 stays open. The run's progress is the tracker's: its committed stamp time, from the first
 commit to the last. The part passes when the median over the last sixth of the progress is at
-most ``GROWTH_LIMIT`` above the median over the second sixth (after the warm-up) and nothing
+most ``soak.GROWTH_LIMIT`` above the median over the second sixth (after the warm-up) and nothing
 is lost: the node received every detection the source published, each accepted or counted as
 rejected, every accepted one pushed through the tracker and, after the quiet-road flush, none
 left in its working set. A 10-minute probe runs first; the hour runs when the probe
@@ -19,7 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .common import Log
-from .soak import GROWTH_LIMIT, rss_growth
+from .soak import rss_growth
 from .stream_graph import SENSORS, _params, run_graph
 
 PROBE_DURATION, HOUR = 600.0, 3600.0
@@ -64,10 +64,10 @@ def memory_verdict(rss_samples: list[dict], values: dict, published: int | None)
     out: dict = {}
     if prog is not None:
         total = [s['node'] + (s['tracker'] or 0) for s in pts]
-        out['rss_total'] = rss_growth(prog, total, RSS_WINDOW, GROWTH_LIMIT)
-        out['rss_node'] = rss_growth(prog, [s['node'] for s in pts], RSS_WINDOW, GROWTH_LIMIT)
+        out['rss_total'] = rss_growth(prog, total, RSS_WINDOW)
+        out['rss_node'] = rss_growth(prog, [s['node'] for s in pts], RSS_WINDOW)
         trk = [(p, s['tracker']) for p, s in zip(prog, pts, strict=True) if s['tracker']]
-        out['rss_tracker'] = rss_growth(*zip(*trk), RSS_WINDOW, GROWTH_LIMIT) if trk else None
+        out['rss_tracker'] = rss_growth(*zip(*trk), RSS_WINDOW) if trk else None
     out['working_set_max'] = max((s.get('working_set') or 0 for s in pts), default=0)
     received, accepted = int(values.get('received', 0)), int(values.get('accepted', 0))
     rejected = int(values.get('rejected', 0))
