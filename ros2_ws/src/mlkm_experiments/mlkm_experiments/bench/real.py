@@ -33,7 +33,9 @@ STATIONS = (5, 10, 20)
 VARIANTS_ROAD = ('closed', 'open')
 SPAN = 400.0  # [m] from the first to the last station
 START = (20.0, 100.0)  # [m] range of the first station's position, drawn per seed
-SEEDS_FULL = 3
+#: placements per cell: at 5 stations the spread between placements is several points, and on
+#: three of them `multiframe` leads `assignment` where on eight it trails it
+SEEDS_FULL = 8
 SEEDS_QUICK = 1
 VARIANTS = ('time_speed', 'lane_length')
 VARIANT_LABELS = {'time_speed': 'time, speed', 'lane_length': '+ lane, length'}
