@@ -26,12 +26,12 @@ import json
 import sys
 import warnings
 from pathlib import Path
+from unittest.mock import patch
 
 import numpy as np
 
 from mlkm_core.associators import AssociatorConfig, make_associator
 from mlkm_core.associators import multiframe as mf
-from mlkm_core.associators.linking import relabel
 from mlkm_core.associators.pairwise_fit import kalman_lead
 from mlkm_core.metrics import accuracy
 from mlkm_core.types import Dataset, Detections, link_pairs
@@ -71,40 +71,30 @@ def persistence(d: Detections, labels: np.ndarray) -> float:
 
 
 def check(ds: Dataset, config: AssociatorConfig) -> dict:
-    """The module docstring's figures on one dataset."""
+    """The module docstring's figures on one dataset. The check's inputs (the pairwise pass
+    and the calibrated model) are taken where ``multiframe`` makes it."""
     t = ds.detections.target
-    seen: dict = {}
-    original = mf.MultiFrameAssociator.track
-
-    def track(self, layout, d, n, params, given):
-        seen.setdefault('input', (layout, d, params))
-        return original(self, layout, d, n, params, given)
-
+    decide = mf.kalman_fits
     out: dict = {}
+
+    def spy(layout, d, labels, params):
+        out['kalman_fits'] = bool(decide(layout, d, labels, params))
+        out['lead'] = float(kalman_lead(layout, d, labels, params))
+        out['persistence'] = persistence(d, labels)
+        return out['kalman_fits']
+
+    def labels_of(name: str) -> np.ndarray:
+        return make_associator(name, config).associate(ds.layout, ds.detections, ds.n_targets)
+
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
-        a = make_associator('assignment', config)
-        out['assignment'] = accuracy(a.associate(ds.layout, ds.detections, ds.n_targets), t)
-        m = make_associator('multiframe', config)
-        mf.MultiFrameAssociator.track = track
-        try:
-            out['multiframe'] = accuracy(m.associate(ds.layout, ds.detections, ds.n_targets), t)
-        finally:
-            mf.MultiFrameAssociator.track = original
-        layout, d, params = seen['input']
-        pairwise = relabel(m._pairwise(layout, d, params))
-        out['lead'] = float(kalman_lead(layout, d, pairwise, params))
-        out['kalman_fits'] = bool(mf.kalman_fits(layout, d, pairwise, params))
-        out['persistence'] = persistence(d, pairwise)
-        decide = mf.kalman_fits
+        out['assignment'] = accuracy(labels_of('assignment'), t).accuracy
+        with patch.object(mf, 'kalman_fits', spy):
+            out['multiframe'] = accuracy(labels_of('multiframe'), t).accuracy
         for name, fits in (('kalman_search', True), ('pairwise_search', False)):
-            mf.kalman_fits = lambda *_, fits=fits: fits
-            try:
-                labels = m.associate(ds.layout, ds.detections, ds.n_targets)
-            finally:
-                mf.kalman_fits = decide
-            out[name] = accuracy(labels, t)
-    return {k: (v.accuracy if hasattr(v, 'accuracy') else v) for k, v in out.items()}
+            with patch.object(mf, 'kalman_fits', lambda *_, fits=fits: fits):
+                out[name] = accuracy(labels_of('multiframe'), t).accuracy
+    return out
 
 
 def ngsim_sets(placements: int):
