@@ -121,10 +121,14 @@ def test_a_vehicle_held_at_a_red_light_keeps_its_track():
     hops = network_hops(net, 2)
     labels, model = calibrate_and_link(net, hops, d)
     assert same_tracks(labels, d.target), accuracy(labels, d.target)
-    # the data taught it the time lost at the signal: without it, the held vehicles are cut
-    # off their tracks or linked wrong
-    mean, var = model.junctions.offset(((0, 1),))
-    assert 5.0 < mean < 20.0 and 5.0 < var**0.5 < 20.0, (mean, var)
+    # the data taught it the signal: its cycle, its green (from 30 s on; the last vehicle
+    # through on green leaves at 55.4 s) and the queue's headway; without a junction model
+    # the held vehicles are cut off their tracks or linked wrong
+    signals = model.junctions.signals
+    assert signals.cycle[(0, 1)] == pytest.approx(60.0, abs=0.5)
+    start, length = signals.green[(0, 1)]
+    assert start == pytest.approx(30.0, abs=1.0) and 24.0 < length < 30.0, (start, length)
+    assert signals.approaches[0].headway == 2.0
     blind, _ = solve(hops, d, model.motion, JunctionModel(model.junctions.shares))
     assert accuracy(blind, d.target).accuracy < 0.9
 

@@ -5,8 +5,10 @@ lost at every junction). From its links: the pairwise model's own maximum-likeli
 motion (``pairwise_fit.fit_links``, on the links that cross no junction where there are
 enough of them, so that red lights do not pass for speed scatter) and, for each hop with as
 many links as that fit needs, a motion fit of its own (an acceleration lane or a merge
-changes speeds far more than the road before it), then the turn shares and the time lost per
-connection (``junctions.fit_junctions``) from the travel-time residuals under that motion.
+changes speeds far more than the road before it), the fixed-time signals where a junction
+shows one (``signals.fit_signals``: cycle, greens, queues), then the turn shares and the time
+lost per connection (``junctions.fit_junctions``) from the travel-time residuals under that
+motion, less each link's wait at its signals.
 Pass 2 links with the fitted model; a second round of fitting follows, as the links of pass 1
 are those of a cruder model. Where the stations report vehicle lengths that vary more than
 their noise, the length cue links with its noise fitted the same way; where they report
@@ -30,6 +32,7 @@ from mlkm_core.network_assoc.hops import Hops
 from mlkm_core.network_assoc.junctions import JunctionModel, fit_junctions, generic_junctions
 from mlkm_core.network_assoc.lanes import HopLanes, fit_lanes
 from mlkm_core.network_assoc.linking import Links, solve
+from mlkm_core.network_assoc.signals import fit_signals, link_waits
 from mlkm_core.types import Detections
 
 #: rounds of (fit, link) after pass 1
@@ -81,7 +84,10 @@ def fit_model(
         e_t[sel], var_t[sel] = trapezoid_residual(per_hop.get(int(h), p), xa, xb, ta, tb, ua, ub)
     turns = [hops.turns[h] for h in links.hop]
     lengths = fit_lengths(d, links.a, links.b) if d.length is not None else None
-    junctions = fit_junctions(net, turns, e_t, np.sqrt(var_t), links.hop)
+    signals = fit_signals(net, hops, d, links.a, links.b, links.hop, e_t)
+    if signals is not None:
+        e_t = e_t - link_waits(signals, d, links.a, links.hop)
+    junctions = fit_junctions(net, turns, e_t, np.sqrt(var_t), links.hop, signals)
     lanes = fit_lanes(d, links.a, links.b, links.hop)
     return NetworkModel(p, junctions, lengths, lanes, per_hop)
 

@@ -17,7 +17,8 @@ Both are estimated from the links of a pass over the data being associated, per 
   time, so among vehicles held in one queue the matching keeps their order (first in, first
   out), which a mixture, flat over the red phase, would leave to chance. A hop with links
   enough gets its own time lost, which also holds a queue reaching back over a station inside
-  a link.
+  a link. Where a junction shows a fixed-time signal (``signals``), each link's wait for its
+  green and its queue's release are taken off first, and the Gaussian holds what is left.
 
 Before anything is fitted (the first pass), every connection has equal shares and a generous
 time lost (``GENERIC_LOSS``), so that no vehicle held at a red light is cut out of the links
@@ -32,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mlkm_core.network import RoadNetwork
+from mlkm_core.network_assoc.signals import Signals
 
 #: central share of a connection's excess travel times its mean and variance are taken from
 KEPT = 0.95
@@ -52,6 +54,9 @@ class JunctionModel:
     #: per hop (index into ``hops.Hops``) with links enough: (mean [s], variance [s^2]) of its
     #: own time lost, which also holds a queue that reaches back over a station
     hops: dict[int, tuple[float, float]] = field(default_factory=dict)
+    #: the fixed-time signals learned from the links (``signals``): each link's wait for its
+    #: green, and what is left of its time lost as a mixture; None where none shows
+    signals: Signals | None = None
 
     def lost(self, hop: int, turns: tuple[tuple[int, int], ...]) -> tuple[float, float]:
         """(mean [s], variance [s^2]) of the time lost on hop ``hop``: its own where fitted,
@@ -83,10 +88,12 @@ def fit_junctions(
     excess: np.ndarray,
     sd: np.ndarray,
     hop: np.ndarray,
+    signals: Signals | None = None,
 ) -> JunctionModel:
     """The junction model of the links of a pass: ``turns[k]`` the connections link k
     crossed, ``excess`` its travel-time residual [s] under the motion model without
-    junctions, ``sd`` that model's standard deviation of it [s], ``hop`` the hop it took."""
+    junctions (its wait at ``signals`` taken off), ``sd`` that model's standard deviation of
+    it [s], ``hop`` the hop it took."""
     counts = dict.fromkeys(net.connections, 1.0)
     for crossed in turns:
         for c in crossed:
@@ -108,7 +115,7 @@ def fit_junctions(
         ks = np.flatnonzero(hop == h)
         if ks.size >= MIN_LINKS:
             per_hop[int(h)] = _loss(excess[ks], sd[ks])
-    return JunctionModel(shares, offsets, spreads, per_hop)
+    return JunctionModel(shares, offsets, spreads, per_hop, signals)
 
 
 def _loss(excess: np.ndarray, sd: np.ndarray) -> tuple[float, float]:

@@ -13,7 +13,8 @@ distance, widened by the time lost at its junctions. Its cost is the sum of part
 
 * motion: the pairwise model's NLL of the travel time and speed change over the distance,
   with the mean and the variance of the time lost at the junctions on the way
-  (``junctions``) added to the travel time's;
+  (``junctions``) added to the travel time's, and the link's wait at its signals
+  (``signals``: the queue's release and the time to the green);
 * the turn: -log of the shares of the connections crossed (``junctions``);
 * misses: the stations the hop passes unseen, each -log p_miss;
 * the vehicle length where the stations report it (``model.length``: the same cue as on one
@@ -40,6 +41,7 @@ from mlkm_core.model.motion import END_MISSES, FLOOR_T, MotionParams, PairwiseMo
 from mlkm_core.network_assoc.hops import Hops
 from mlkm_core.network_assoc.junctions import JunctionModel
 from mlkm_core.network_assoc.lanes import HopLanes
+from mlkm_core.network_assoc.signals import Signals, by_value
 from mlkm_core.types import Detections
 
 
@@ -109,9 +111,11 @@ def candidates(
         missed[h] = hops.skipped[h] * p.miss_cost
         turned[h] = junctions.turn_cost(hops.turns[h])
         groups.setdefault((id(ph), float(spread)), (ph, []))[1].append(h)
+    signals = junctions.signals
+    release = None if signals is None else signals.releases(d)
     parts = [
         _group_candidates(hops, d, u, ph, spread, np.asarray(hs, np.int64),
-                          by_station, first, count, shifts)
+                          by_station, first, count, shifts, signals, release)
         for (_, spread), (ph, hs) in groups.items()
     ]  # fmt: skip
     if not parts:
@@ -145,10 +149,13 @@ def _group_candidates(
     first: np.ndarray,
     count: np.ndarray,
     shifts: np.ndarray,
+    signals: Signals | None = None,
+    release: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(i, j, motion cost, hop) of the gated links across the hops ``hs``, which share the
     motion model ``ph`` and the junction spread ``spread`` [s^2]; by hop, ``i``, stamp of
-    ``j``."""
+    ``j``. ``signals``: each link's travel time also holds its wait for the green (from its
+    queue's ``release`` where known)."""
     src, dst = hops.src[hs], hops.dst[hs]
     k, a = runs(first[src], first[src] + count[src], by_station)
     a_hop = hs[k]
@@ -158,17 +165,34 @@ def _group_candidates(
     m.start(rows, 0.0, d.stamp[a], u[a])
     centre, half = m.gate_window(m.predict(rows, hops.distance[a_hop]))
     half = np.sqrt(half * half + ph.gate * spread)
-    centre = centre + shifts[a_hop]
+    waits = _waits(signals, a_hop, d.stamp[a], u[a], None if release is None else release[a])
+    lost = shifts[a_hop] + waits
+    centre = centre + lost
     k, b = runs(first[dst], first[dst] + count[dst], by_station)
     r, c = gate_pairs_grouped(a_hop, centre, half, hs[k], d.stamp[b])
-    i, j, hop = a[r], b[c], a_hop[r]
+    i, j, hop, lost = a[r], b[c], a_hop[r], lost[r]
     keep = d.stamp[j] > d.stamp[i]
-    i, j, hop = i[keep], j[keep], hop[keep]
-    nll, d2 = hop_cost(
-        ph, hops.distance[hop], d.stamp[i], u[i], d.stamp[j] - shifts[hop], u[j], spread
-    )
+    i, j, hop, lost = i[keep], j[keep], hop[keep], lost[keep]
+    nll, d2 = hop_cost(ph, hops.distance[hop], d.stamp[i], u[i], d.stamp[j] - lost, u[j], spread)
     ok = np.isfinite(nll) & (d2 <= ph.gate)
     return i[ok], j[ok], nll[ok], hop[ok]
+
+
+def _waits(
+    signals: Signals | None,
+    hop: np.ndarray,
+    stamp: np.ndarray,
+    slowness: np.ndarray,
+    release: np.ndarray | None,
+) -> np.ndarray:
+    """Each row's wait [s] at the signals of its hop ``hop`` (``signals.Signals.wait``)."""
+    out = np.zeros(hop.size)
+    if signals is None:
+        return out
+    for h, rows in by_value(hop, signals.hops):
+        rel = None if release is None else release[rows]
+        out[rows] = signals.wait(h, stamp[rows], slowness[rows], rel)
+    return out
 
 
 def link_weights(
