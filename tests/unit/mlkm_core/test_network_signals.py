@@ -14,7 +14,13 @@ import mlkm_core.network_assoc.fit as fit
 from mlkm_core.metrics import accuracy
 from mlkm_core.network_assoc import network_hops
 from mlkm_core.network_assoc.fit import calibrate_and_link
-from mlkm_core.network_assoc.signals import Approach, best_cycle, green_window, red_wait
+from mlkm_core.network_assoc.signals import (
+    Approach,
+    _gamma_tail,
+    best_cycle,
+    green_window,
+    red_wait,
+)
 
 
 def test_the_wait_for_a_green_by_hand():
@@ -44,6 +50,13 @@ def test_the_cycle_and_the_green_from_exit_times():
     assert chance > 0.01
     start, length = green_window(np.mod(exits, 73.0), 73.0)
     assert start == pytest.approx(27.0, abs=1.5) and length == pytest.approx(30.0, abs=2.0)
+
+
+def test_the_chance_of_a_cycle_in_random_exits_by_hand():
+    # one connection: the Rayleigh statistic of random times is exponential with mean 1
+    assert _gamma_tail(3.0, 1) == pytest.approx(np.exp(-3.0))
+    # four: Gamma(4), P(X > 10) = exp(-10) (1 + 10 + 50 + 166.67)
+    assert _gamma_tail(10.0, 4) == pytest.approx(np.exp(-10.0) * (1 + 10 + 50 + 1000 / 6))
 
 
 def test_a_green_window_keeps_its_last_vehicles_and_drops_a_stray_one():

@@ -43,7 +43,6 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import gamma
 
 from mlkm_core.network import RoadNetwork
 from mlkm_core.network_assoc.hops import Hops
@@ -215,8 +214,17 @@ def best_cycle(exits: list[np.ndarray]) -> tuple[float, float]:
     best = int(np.argmax(score))
     span = max(float(t[-1] - t[0]) for t in exits)
     tries = max(span * (1.0 / CYCLE_RANGE[0] - 1.0 / CYCLE_RANGE[1]), 1.0)
-    chance = min(float(gamma.sf(score[best], len(exits))) * tries, 1.0)
+    chance = min(_gamma_tail(float(score[best]), len(exits)) * tries, 1.0)
     return float(periods[best]), chance
+
+
+def _gamma_tail(x: float, k: int) -> float:
+    """P(X > x) for X ~ Gamma(k, 1), k a whole number: exp(-x) sum_{i < k} x^i / i!."""
+    term, total = 1.0, 1.0
+    for i in range(1, k):
+        term *= x / i
+        total += term
+    return math.exp(-x) * total
 
 
 def green_window(phases: np.ndarray, cycle: float) -> tuple[float, float]:
