@@ -55,7 +55,7 @@ class JunctionModel:
     #: own time lost, which also holds a queue that reaches back over a station
     hops: dict[int, tuple[float, float]] = field(default_factory=dict)
     #: the fixed-time signals learned from the links (``signals``): each link's wait for its
-    #: green, and what is left of its time lost as a mixture; None where none shows
+    #: green, taken off before the Gaussians above; None where none shows
     signals: Signals | None = None
 
     def lost(self, hop: int, turns: tuple[tuple[int, int], ...]) -> tuple[float, float]:

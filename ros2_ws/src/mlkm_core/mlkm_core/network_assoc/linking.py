@@ -41,7 +41,7 @@ from mlkm_core.model.motion import END_MISSES, FLOOR_T, MotionParams, PairwiseMo
 from mlkm_core.network_assoc.hops import Hops
 from mlkm_core.network_assoc.junctions import JunctionModel
 from mlkm_core.network_assoc.lanes import HopLanes
-from mlkm_core.network_assoc.signals import Signals, by_value
+from mlkm_core.network_assoc.signals import Signals
 from mlkm_core.types import Detections
 
 
@@ -165,8 +165,9 @@ def _group_candidates(
     m.start(rows, 0.0, d.stamp[a], u[a])
     centre, half = m.gate_window(m.predict(rows, hops.distance[a_hop]))
     half = np.sqrt(half * half + ph.gate * spread)
-    waits = _waits(signals, a_hop, d.stamp[a], u[a], None if release is None else release[a])
-    lost = shifts[a_hop] + waits
+    lost = shifts[a_hop]
+    if signals is not None:
+        lost = lost + signals.waits(a_hop, d.stamp[a], u[a], release[a])
     centre = centre + lost
     k, b = runs(first[dst], first[dst] + count[dst], by_station)
     r, c = gate_pairs_grouped(a_hop, centre, half, hs[k], d.stamp[b])
@@ -176,23 +177,6 @@ def _group_candidates(
     nll, d2 = hop_cost(ph, hops.distance[hop], d.stamp[i], u[i], d.stamp[j] - lost, u[j], spread)
     ok = np.isfinite(nll) & (d2 <= ph.gate)
     return i[ok], j[ok], nll[ok], hop[ok]
-
-
-def _waits(
-    signals: Signals | None,
-    hop: np.ndarray,
-    stamp: np.ndarray,
-    slowness: np.ndarray,
-    release: np.ndarray | None,
-) -> np.ndarray:
-    """Each row's wait [s] at the signals of its hop ``hop`` (``signals.Signals.wait``)."""
-    out = np.zeros(hop.size)
-    if signals is None:
-        return out
-    for h, rows in by_value(hop, signals.hops):
-        rel = None if release is None else release[rows]
-        out[rows] = signals.wait(h, stamp[rows], slowness[rows], rel)
-    return out
 
 
 def link_weights(

@@ -147,6 +147,26 @@ class Signals:
             waited = waited + red_wait(arrive, self.cycle[c], *self.green[c])
         return waited
 
+    def waits(
+        self,
+        hop: np.ndarray,
+        stamp: np.ndarray,
+        slowness: np.ndarray,
+        release: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """``wait`` of each row: a vehicle seen at ``stamp[k]`` with ``slowness[k]`` at the
+        first station of hop ``hop[k]``, its queue's release ``release[k]`` where known."""
+        out = np.zeros(hop.size)
+        order = np.argsort(hop, kind='stable')
+        keys, starts = np.unique(hop[order], return_index=True)
+        ends = np.append(starts[1:], order.size)
+        for h, lo, hi in zip(keys.tolist(), starts, ends, strict=True):
+            if h in self.hops:
+                rows = order[lo:hi]
+                rel = None if release is None else release[rows]
+                out[rows] = self.wait(h, stamp[rows], slowness[rows], rel)
+        return out
+
 
 def red_wait(arrive: np.ndarray, cycle: float, start: float, length: float) -> np.ndarray:
     """Wait [s] from ``arrive`` [s] to the next moment of the green window (``start`` phase,
@@ -264,16 +284,6 @@ def _ends(net: RoadNetwork, d: Detections, a: np.ndarray, b: np.ndarray):
     return d.stamp[a] + lead * u[a], d.stamp[b] - net.station_offsets[st_b] * u[b]
 
 
-def _last_stations(net: RoadNetwork) -> dict[int, int]:
-    """Per link with stations: its last station (the nearest its end)."""
-    last: dict[int, int] = {}
-    for s in range(net.n_stations):
-        k = int(net.station_links[s])
-        if k not in last or net.station_offsets[s] > net.station_offsets[last[k]]:
-            last[k] = s
-    return last
-
-
 def fit_signals(
     net: RoadNetwork, hops: Hops, d: Detections, a: np.ndarray, b: np.ndarray, hop: np.ndarray,
     excess: np.ndarray,
@@ -304,18 +314,17 @@ def fit_signals(
     along = hop_junctions(net, hops)
     used = {h: steps for h, steps in along.items() if any(c in green for c, _ in steps)}
     src = {h: int(hops.src[h]) for h in used}
-    last = _last_stations(net)
     lengths = net.link_lengths
     pooled: dict[int, list[int]] = {}
     for c in green:
         pooled.setdefault(c[0], []).extend(alone[c])
     windows = {}
     for link, ks in pooled.items():
-        if link in last:
+        if net.stations_along[link]:
+            at, station = net.stations_along[link][-1]  # the queue's station: the last
             period = cycle[next(c for c in green if c[0] == link)]
-            lead = lengths[link] - float(net.station_offsets[last[link]])
             window = green_window(np.mod(leave[ks], period), period)
-            windows[link] = (last[link], lead, period, *window)
+            windows[link] = (station, lengths[link] - at, period, *window)
     out = Signals(cycle, green, {}, used, src)
     best, best_score = out, _spread(out, d, a, hop, excess, alone)
     for per_lane in HEADWAYS:
@@ -332,21 +341,8 @@ def fit_signals(
 
 def link_waits(signals: Signals, d: Detections, a: np.ndarray, hop: np.ndarray) -> np.ndarray:
     """The wait [s] at its signals of each link from detection ``a[k]`` across ``hop[k]``."""
-    out = np.zeros(a.size)
-    release = signals.releases(d)
-    u = 1.0 / d.velocity
-    for h, sel in by_value(hop, signals.hops):
-        out[sel] = signals.wait(h, d.stamp[a[sel]], u[a[sel]], release[a[sel]])
-    return out
-
-
-def by_value(values: np.ndarray, wanted) -> list[tuple[int, np.ndarray]]:
-    """(value, the indexes holding it) for each value of ``values`` in ``wanted``."""
-    order = np.argsort(values, kind='stable')
-    keys, starts = np.unique(values[order], return_index=True)
-    ends = np.append(starts[1:], order.size)
-    return [(int(k), order[lo:hi]) for k, lo, hi in zip(keys.tolist(), starts, ends, strict=True)
-            if int(k) in wanted]  # fmt: skip
+    release = signals.releases(d)[a]
+    return signals.waits(hop, d.stamp[a], 1.0 / d.velocity[a], release)
 
 
 def _spread(
