@@ -105,12 +105,10 @@ def test_param_file_matches_declared_defaults() -> None:
         ('cache_dir:=/dev/null/x', 'cannot create the network cache /dev/null/x'),
         ('stations_at:=500;1200', 'stations_at must list positions in metres separated by'),
         ('network:=ring', "unknown value 'ring'; choose one of , interchange, arterial, grid"),
-        ('network:=grid', "mode 'continuous' is not available on a road network"),
     ],
 )
 def test_bad_setting_exits_2_with_one_clear_message(ros_process, param, words) -> None:
-    extra = ('-p', 'mode:=continuous') if param == 'network:=grid' else ()
-    proc = ros_process('road_sensors', 'sumo_sensors', '--ros-args', '-p', param, *extra)
+    proc = ros_process('road_sensors', 'sumo_sensors', '--ros-args', '-p', param)
     assert proc.proc.wait(60) == 2
     out = proc.output()
     assert words in out and 'sumo_sensors: error:' in out
@@ -256,6 +254,50 @@ def ds_network(ds):
     from mlkm_core.network import network_from_mapping
 
     return network_from_mapping(ds.mapping, 'interchange')
+
+
+def test_continuous_traffic_on_a_network_is_the_offline_network_stream(
+    ros_process, listener, spin_until
+) -> None:
+    from mlkm_ros.network_conversions import msg_to_network
+    from mlkm_sumo.road_networks import draw_network, network_stream
+
+    draw = draw_network('interchange', 2, vehicles=20)
+    stream = network_stream(draw, duration=150.0)
+    offline = list(stream)
+    names = [s['name'] for s in stream.road.mapping['stations']]
+    listener.subscribe_detections(names)
+    sumo = ros_process(
+        'road_sensors',
+        'sumo_sensors',
+        '--ros-args',
+        *('-p', 'network:=interchange', '-p', 'seed:=2', '-p', 'vehicles:=20'),
+        *('-p', 'mode:=continuous', '-p', 'duration:=150.0'),
+        *('-p', 'wait_for_subscribers:=1', '-p', 'wait_for_truth_subscribers:=1'),
+    )
+    assert spin_until(listener.executor, lambda: sumo.proc.poll() is not None, 120.0)
+    assert sumo.proc.wait(5) == 0, sumo.output()
+    n = len(offline)
+    got = spin_until(
+        listener.executor, lambda: len(listener.detections) >= n and len(listener.truth) >= n
+    )
+    assert got and n > 100, sumo.output()
+    assert len(listener.detections) == len(listener.truth) == n
+    assert listener.infos == [] and listener.node.count_publishers(qos.EPISODE_TOPIC) == 0
+    # the network form of the layout, and each passage of the offline stream published once
+    # at its station, lane, stamp and speed (the stamps moved by no jitter margin)
+    net = msg_to_network(listener.layout)
+    assert len(net.links) == len(stream.road.mapping['links']) and net.n_stations == len(names)
+    sent = sorted(
+        (d.sensor_id, d.lane, conv.time_to_ns(d.header.stamp), round(d.velocity, 6))
+        for d in listener.detections
+    )
+    want = sorted(
+        (p.station, p.lane, conv.seconds_to_ns(p.time), round(p.speed, 6)) for p in offline
+    )
+    assert sent == want
+    vehicles = {t.vehicle_id for t in listener.truth if not t.false_alarm}
+    assert vehicles == {p.vehicle for p in offline} and len(vehicles) > 50
 
 
 def test_continuous_mode_streams_without_episodes(ros_process, listener, spin_until) -> None:

@@ -20,6 +20,7 @@ from mlkm_sumo.road_networks import (
     NETWORK_FAMILIES,
     draw_network,
     generate_network,
+    network_stream,
     write_network_dataset,
 )
 
@@ -343,3 +344,25 @@ def test_the_signal_programs_are_retimed_to_the_draw(family, cache):
                 major = {in_edge[i] for i, c in enumerate(state) if c == 'G'}
                 green['main' if major & main else 'cross'] += t
         assert green['main'] / sum(green.values()) == pytest.approx(s['split'], abs=0.005)
+
+
+def test_continuous_traffic_on_a_network_comes_in_time_order_along_its_connections(cache):
+    draw = draw_network('interchange', 3, vehicles=VEHICLES)
+    stream = network_stream(draw, duration=400.0, cache_dir=cache)
+    mapping = stream.road.mapping  # known before SUMO starts
+    passages = list(stream)
+    assert np.all(np.diff([p.time for p in passages]) >= 0) and passages[-1].time < 400.0
+    links = [s['link'] for s in mapping['stations']]
+    pos = [s['position_m'] for s in mapping['stations']]
+    seen: dict[str, list[int]] = {}
+    for p in passages:
+        assert p.position == pos[p.station] and p.vehicle  # no false alarms by default
+        assert 0 <= p.lane < mapping['stations'][p.station]['lanes']
+        if p.kind == PASSAGE:  # not a lane change's second report
+            seen.setdefault(p.vehicle, []).append(p.station)
+    # the demand runs on at the draw's flow: more vehicles than the episode of the draw
+    assert len(seen) > 1.2 * VEHICLES and draw.flow * 400.0 / 3600.0 > len(seen) * 0.8
+    for vehicle, stations in seen.items():
+        for a, b in zip(stations, stations[1:]):
+            ahead = links[a] == links[b] and pos[b] > pos[a]
+            assert ahead or reachable(mapping, links[a], links[b]), (vehicle, a, b)

@@ -233,7 +233,9 @@ class PassageStream:
     ``road`` is known before iterating; iterating starts SUMO and yields ``Passage``s until
     ``duration`` [s] (or forever without it), with continuous demand at the scenario's flow.
     Each simulation step is measured on its own; with stamp jitter the stream holds reports
-    back by six jitter standard deviations so that they still come out in time order."""
+    back by six jitter standard deviations so that they still come out in time order. On a
+    road network (``road_networks.network_stream``) a passage's station is the network's
+    station index and its position is along the station's link."""
 
     def __init__(
         self,
@@ -248,17 +250,44 @@ class PassageStream:
         flow: float | None = None,
     ) -> None:
         self.scenario = scenario(scenario_name)
-        self.duration = duration
+        layout_rng, rng = _rngs(seed)
+        built = make_road(scenario_name, n_stations, layout_rng, stations_at, cache_dir)
+        self._setup(built, built.layout.positions, seed, flow or self.scenario.flow, rng,
+                    duration, measurement, step_length)  # fmt: skip
+
+    @classmethod
+    def on_road(
+        cls,
+        built,
+        positions: np.ndarray,
+        seed: int,
+        flow: float,
+        rng: np.random.Generator,
+        duration: float | None = None,
+        measurement: MeasurementConfig | None = None,
+        step_length: float = 0.2,
+    ) -> PassageStream:
+        """The stream on a road already built (``built``: what ``SumoRun`` drives, with its
+        route distribution ``demand``; ``positions`` [m] of its stations), at ``flow``
+        [veh/h], measured with ``rng``."""
+        self = cls.__new__(cls)
+        self.scenario = None
+        self._setup(built, positions, seed, flow, rng, duration, measurement, step_length)
+        return self
+
+    def _setup(self, built, positions, seed, flow, rng, duration, measurement, step_length):
+        self.road = built
+        self.positions = np.asarray(positions, float)
         self.seed = seed
-        self.step_length = step_length
-        self.flow = flow or self.scenario.flow
+        self.flow = flow
+        self._rng = rng
+        self.duration = duration
         self.measurement = measurement or MeasurementConfig()
-        layout_rng, self._rng = _rngs(seed)
-        self.road = make_road(scenario_name, n_stations, layout_rng, stations_at, cache_dir)
+        self.step_length = step_length
         self.stats = MeasurementStats()
 
     def __iter__(self) -> Iterator[Passage]:
-        pos = self.road.layout.positions
+        pos = self.positions
         hold = 6.0 * self.measurement.stamp_jitter
         heap: list[tuple] = []
         with SumoRun(self.road, self.seed, self.step_length) as run:

@@ -27,7 +27,7 @@ import yaml
 from mlkm_core.csvout import write_detections
 from mlkm_core.types import FALSE_ALARM, Detections
 
-from .api import DRAIN_LIMIT
+from .api import DRAIN_LIMIT, PassageStream
 from .measurement import (
     CSV_DECIMALS,
     PASSAGE,
@@ -173,6 +173,26 @@ def generate_network(
         }
         routes = dict(run.vehicle_routes)
     return _to_dataset(draw, road, measured, routes, stats)
+
+
+def network_stream(
+    draw: NetworkDraw,
+    duration: float | None = None,
+    measurement: MeasurementConfig | None = None,
+    cache_dir: str | Path | None = None,
+    step_length: float = STEP_LENGTH,
+) -> PassageStream:
+    """Continuous traffic on the network of ``draw``: departures at its flow, on its routes
+    with their shares, until ``duration`` [s] or forever (None), measured as passages come
+    (``PassageStream``); a passage's station is the network's station index and its
+    position is along that station's link. SUMO, the departures and the measurement are
+    seeded with ``draw.seed``. Raises SumoError."""
+    road = build_draw(draw, cache_dir)
+    positions = np.array([s['position_m'] for s in road.mapping['stations']], float)
+    rng = np.random.default_rng([int(draw.seed), 0x4E7])
+    return PassageStream.on_road(
+        road, positions, draw.seed, draw.flow, rng, duration, measurement, step_length
+    )
 
 
 @dataclass(frozen=True)

@@ -69,8 +69,8 @@ SPECS = [
         'mode',
         'episodes',
         "'episodes': batches of `vehicles` vehicles, each announced with EpisodeInfo and "
-        "ended when all left the road; 'continuous': open-road traffic at the flow, no "
-        'EpisodeInfo, episode_id 0 in ground truth [-]',
+        "ended when all left the road; 'continuous': open-road traffic at the flow (on a "
+        "network: its draw's), no EpisodeInfo, episode_id 0 in ground truth [-]",
         read_only=True,
         check=_one_of(MODES),
         constraints='one of: ' + ', '.join(MODES),
@@ -179,11 +179,6 @@ class SumoSensorsConfig(DeliveryConfig):
             )
         except ValueError as exc:
             raise ParameterError(f'invalid measurement model: {exc}') from None
-        if v['network'] and v['mode'] != 'episodes':
-            raise ParameterError(
-                f'mode {v["mode"]!r} is not available on a road network (network '
-                f"{v['network']!r}): use mode 'episodes'"
-            )
         return SumoSensorsConfig(
             scenario=v['scenario'],
             network=v['network'] or None,

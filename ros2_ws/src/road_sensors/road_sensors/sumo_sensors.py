@@ -12,8 +12,10 @@ false alarms) and optionally /clock with the SUMO time.
   window: first to last detection), the detections in passage-time order, EpisodeInfo ENDED
   with the per-station counts; then the next batch. Targets count from 0 in every episode.
 * ``mode: continuous``: open-road traffic at the scenario's flow (``mlkm_sumo.PassageStream``),
-  each passage published as SUMO produces it; no EpisodeInfo, episode_id 0 and one target
-  numbering for the whole run in ground truth; ``duration`` 0 runs until stopped.
+  or on a road network at its draw's flow and route shares
+  (``mlkm_sumo.road_networks.network_stream``), each passage published as SUMO produces it;
+  no EpisodeInfo, episode_id 0 and one target numbering for the whole run in ground truth;
+  ``duration`` 0 runs until stopped.
 
 All data topics are reliable KEEP_ALL behind the shared back-pressure policy
 (``mlkm_ros.publishing``), so nothing is lost; ``real_time_factor`` paces the messages by SUMO
@@ -44,7 +46,7 @@ from mlkm_ros.params import ParameterError
 from mlkm_sumo import PassageStream, SumoDataset, SumoError, episodes, road
 from mlkm_sumo.measurement import PASSAGE
 from mlkm_sumo.network_sources import build_draw
-from mlkm_sumo.road_networks import draw_network, generate_network
+from mlkm_sumo.road_networks import draw_network, generate_network, network_stream
 from road_sensors.source import SensorSource
 from road_sensors.sumo_params import SPECS, SumoSensorsConfig
 
@@ -110,11 +112,19 @@ class SumoSensorsNode(SensorSource):
         built = build_draw(self._draw, cfg.cache_dir)
         self._net = network_from_mapping(built.mapping, f'{cfg.network} seed {cfg.seed}')
         self._mapping = built.mapping
-        self._open(network_stations(self._net), True, network_to_msg(self._net, self._now_ns()))
+        episodic = cfg.mode == 'episodes'
+        self._open(
+            network_stations(self._net), episodic, network_to_msg(self._net, self._now_ns())
+        )
+        what = (
+            f'{cfg.episodes} episodes of {cfg.vehicles} vehicles'
+            if episodic
+            else f'continuous traffic at {self._draw.flow:.0f} vehicles/h '
+            + (f'for {cfg.duration:g} s' if cfg.duration else 'until stopped')
+        )
         self.get_logger().info(
             f'SUMO network {cfg.network} seed {cfg.seed}: {self._net.n_stations} stations on '
-            f'{len(self._net.links)} links, {cfg.episodes} episodes of {cfg.vehicles} vehicles, '
-            f'real_time_factor {self._rtf:g}'
+            f'{len(self._net.links)} links, {what}, real_time_factor {self._rtf:g}'
         )
 
     # --- the run --------------------------------------------------------------------------
@@ -193,7 +203,12 @@ class SumoSensorsNode(SensorSource):
 
     def _stream(self) -> bool:
         cfg: SumoSensorsConfig = self._config
-        stream = PassageStream(cfg.scenario, duration=cfg.duration, **cfg.sumo_options())
+        if cfg.network:
+            stream = network_stream(
+                self._draw, cfg.duration, cfg.measurement, cfg.cache_dir, cfg.step_length
+            )
+        else:
+            stream = PassageStream(cfg.scenario, duration=cfg.duration, **cfg.sumo_options())
         targets: dict[str, int] = {}  # SUMO id -> target id of this run
         next_log = PROGRESS_EVERY
         passages = iter(stream)
