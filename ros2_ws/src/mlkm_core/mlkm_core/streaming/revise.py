@@ -13,7 +13,8 @@ from mlkm_core.streaming.book import Det, TrackBook, canon
 
 class Revisions(TrackBook):
     """The tracker's changes at a solved boundary; ``StreamTracker`` provides ``layout``,
-    ``config``, ``_params``, ``_before_exit``, ``_stats``, ``_history`` and ``_context``."""
+    ``config``, ``_params``, ``_before_exit``, ``_stats``, ``_history``, ``_context`` and
+    ``_ended``."""
 
     def _apply(self, window: list[Det], own: np.ndarray, groups: list[np.ndarray]) -> None:
         """Move the window's detections to the tracks of the solve."""
@@ -69,6 +70,7 @@ class Revisions(TrackBook):
                 touched.add(tid)
                 self._unassigned.append(d.key)
                 self._stats['false_alarms'] += 1
+                self._ended.add_alone(d.sensor, d.stamp, d.velocity)
             if (link if label >= 0 else -1) != d.first:  # the link first published changed
                 self._stats['revised'] += 1
             self._committed.append((d.key, label))
@@ -112,6 +114,7 @@ class Revisions(TrackBook):
                 del self._dets[d.key]
             if len(done) >= 3:
                 self._remember(done)
+            self._ended.add_track([(d.sensor, d.stamp, d.velocity) for d in done])
             self._stats['final_tracks'] += 1
 
     def _remember(self, done: list[Det]) -> None:

@@ -102,6 +102,7 @@ class WindowSnapshots(ImmediateLinks):
             calibration,
             self._model if carry else None,
             self._evidence,
+            self._ended.rates(self._params) if calibrates else None,
         )
         prepared.n_anchors = len(anchors)
         prepared.anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)

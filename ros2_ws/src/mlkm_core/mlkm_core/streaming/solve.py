@@ -83,6 +83,9 @@ class WindowProblem:
     # what the method decides once per stream, from the windows solved so far: their
     # evidence added up (``Associator.settled``; None: none yet)
     evidence: tuple[float, float] | None = None
+    # (entry rate, exit rate) per station from the stream's ended tracks (``entries``; None:
+    # none estimated): a window's own tracks begin and end at its edges
+    rates: tuple[np.ndarray | None, np.ndarray | None] | None = None
 
 
 @dataclass(frozen=True)
@@ -147,6 +150,8 @@ def solve(problem: WindowProblem) -> WindowSolution:
         else:
             motion = problem.model.bind(layout, ordered)
     evidence = None
+    if motion is not None and problem.rates is not None:
+        motion = replace(motion, entry_rate=problem.rates[0], exit_rate=problem.rates[1])
     if motion is not None:
         motion, evidence = associator.settled(layout, ordered, motion, problem.evidence)
     labels, degraded, failed = solve_window(associator, layout, d, motion)

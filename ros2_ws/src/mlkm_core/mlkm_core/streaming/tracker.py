@@ -15,6 +15,7 @@ from mlkm_core.streaming.config import (
     StreamConfig,
     StreamUpdate,
 )
+from mlkm_core.streaming.entries import EndedTracks
 from mlkm_core.streaming.snapshot import PreparedWindow, WindowSnapshots
 from mlkm_core.streaming.solve import CarriedModel, WindowSolution, add_evidence, solve
 from mlkm_core.streaming.window import owners
@@ -55,6 +56,7 @@ class StreamTracker(WindowSnapshots):
         self._late_before = -math.inf  # pushes stamped before it are late
         self._context: list[tuple[float, tuple, Det]] = []  # (end stamp, canon, det), sorted
         self._history: deque = deque(maxlen=config.calibration_size)
+        self._ended = EndedTracks(layout)  # where vehicles enter and leave mid-road
         self._calibrated_at: int | None = None
         # rows the carried model was calibrated on: one calibrated on fewer than a full
         # context (a road filling up) is not carried, the next window calibrates again
@@ -143,6 +145,7 @@ class StreamTracker(WindowSnapshots):
         if not self._solved:
             self._next_k = first_k if self._next_k is None else min(self._next_k, first_k)
         self._newest = max(self._newest, stamp)
+        self._ended.begin(stamp)
         self._advance()
         d = Det(key, sensor_index, stamp, velocity, int(lane), float(length))
         self._dets[key] = d
