@@ -88,3 +88,27 @@ def test_the_stream_prices_the_ends_of_real_vehicles_observed_over_part_of_the_r
     entry, exit_ = tracker._ended.rates(tracker.params)
     assert exit_ is not None and exit_[3] > 0.1  # the loop where many observations end
     assert accuracy(labels, d.target).accuracy > 0.985
+
+
+def test_a_lag_that_holds_the_whole_open_road_gives_the_batch_tracks():
+    # nothing is committed before the flush, whose window is the whole input: its vehicles'
+    # passages are whole, and it estimates the rates as batch does
+    from mlkm_core.associators import AssociatorConfig, make_associator
+
+    traj = read_trajectories(DATA)
+    x0 = float(np.random.default_rng(4).uniform(20.0, 100.0))
+    ds = virtual_loops(traj, even_positions(5, x0, x0 + 400.0), False).dataset
+    d = ds.detections
+    tracker = StreamTracker(ds.layout, StreamConfig(method='multiframe', lag=1e5))
+    labels = np.full(len(d), -1, np.int64)
+    for k in np.lexsort((d.sensor_index, d.stamp)).tolist():
+        tracker.push(k, int(d.sensor_index[k]), float(d.stamp[k]), float(d.velocity[k]),
+                     int(d.lane[k]), float(d.length[k]))  # fmt: skip
+    for key, track in tracker.flush().committed.tolist():
+        labels[key] = track
+    batch = make_associator('multiframe', AssociatorConfig()).associate(ds.layout, d, ds.n_targets)
+
+    def tracks(lab):
+        return {frozenset(np.flatnonzero(lab == t).tolist()) for t in set(lab.tolist()) - {-1}}
+
+    assert tracks(labels) == tracks(np.asarray(batch))

@@ -38,9 +38,14 @@ Mechanism
    whether vehicles keep a cruise speed, which picks the motion model of its search) is
    decided on the evidence of every window so far (``Associator.settled``; the tracker adds
    each window's for the share of its rows it commits, the older fading past
-   ``solve.EVIDENCE_WEIGHT``), so the windows do not flip between models. With a lag longer
-   than the input nothing is committed before ``flush``, whose window is the whole input and
-   calibrates: the stream gives exactly the batch association.
+   ``solve.EVIDENCE_WEIGHT``), so the windows do not flip between models. Where vehicles
+   enter and leave mid-road (a road observed over part of its length, undeclared side
+   streets), a window cannot tell a vehicle that did from one its edges cut: each window
+   prices the tracks it begins and ends by the entry and exit rates of the tracks the
+   stream has ended, which are whole (``entries``). With a lag longer than the input
+   nothing is committed before ``flush``, whose window is the whole input, holds every
+   vehicle's passages and calibrates on them as batch does: the stream gives exactly the
+   batch association.
 3. **Stitching onto stable ids.** The window's clusters are mapped back through the anchors:
    a cluster holding the last committed detection of an open track continues that track (of
    several such tracks, each takes the cluster's window detections from its own last

@@ -103,6 +103,7 @@ class WindowSnapshots(ImmediateLinks):
             self._model if carry else None,
             self._evidence,
             self._ended.rates(self._params) if calibrates else None,
+            final and not anchors and not self._stats['committed'],
         )
         prepared.n_anchors = len(anchors)
         prepared.anchor_track = np.array([a[1] for a in anchors] + [-1] * len(window), np.int64)

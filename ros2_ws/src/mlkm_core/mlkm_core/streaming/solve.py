@@ -86,6 +86,9 @@ class WindowProblem:
     # (entry rate, exit rate) per station from the stream's ended tracks (``entries``; None:
     # none estimated): a window's own tracks begin and end at its edges
     rates: tuple[np.ndarray | None, np.ndarray | None] | None = None
+    # the window is the whole input (a flush before any commit): every vehicle's passages
+    # are in it, as in batch (``estimate_params(whole_passages=True)``)
+    whole: bool = False
 
 
 @dataclass(frozen=True)
@@ -141,7 +144,7 @@ def solve(problem: WindowProblem) -> WindowSolution:
             try:
                 cfg = problem.config
                 openings = MotionParams.road_openings(layout.positions, cfg.entries, cfg.exits)
-                motion = estimate_params(layout, ordered, openings, whole_passages=False)
+                motion = estimate_params(layout, ordered, openings, whole_passages=problem.whole)
             except ValueError:
                 motion = None  # solve_window replaces the method for this window
             # a model calibrated on too few detections is used for this window only
@@ -150,7 +153,7 @@ def solve(problem: WindowProblem) -> WindowSolution:
         else:
             motion = problem.model.bind(layout, ordered)
     evidence = None
-    if motion is not None and problem.rates is not None:
+    if motion is not None and problem.rates is not None and not problem.whole:
         motion = replace(motion, entry_rate=problem.rates[0], exit_rate=problem.rates[1])
     if motion is not None:
         motion, evidence = associator.settled(layout, ordered, motion, problem.evidence)
