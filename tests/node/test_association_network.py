@@ -182,7 +182,8 @@ def test_stream_mode_on_a_network_ends_with_the_two_tracks(harness) -> None:
 
     def final() -> bool:
         for msg in h.tracks:
-            assert msg.mode == TrackArray.MODE_STREAM
+            # linked by the network's stream, whatever stream_method says (multiframe)
+            assert msg.mode == TrackArray.MODE_STREAM and msg.method == 'assignment'
             for track in msg.tracks:
                 latest[track.track_id] = track
         h.tracks.clear()

@@ -99,7 +99,8 @@ def test_a_lag_that_holds_the_whole_open_road_gives_the_batch_tracks():
     x0 = float(np.random.default_rng(4).uniform(20.0, 100.0))
     ds = virtual_loops(traj, even_positions(5, x0, x0 + 400.0), False).dataset
     d = ds.detections
-    tracker = StreamTracker(ds.layout, StreamConfig(method='multiframe', lag=1e5))
+    config = StreamConfig(method='multiframe', lag=1e5, solve_interval=1e5)  # the flush solves
+    tracker = StreamTracker(ds.layout, config)
     labels = np.full(len(d), -1, np.int64)
     for k in np.lexsort((d.sensor_index, d.stamp)).tolist():
         tracker.push(k, int(d.sensor_index[k]), float(d.stamp[k]), float(d.velocity[k]),

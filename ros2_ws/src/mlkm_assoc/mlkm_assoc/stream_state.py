@@ -99,6 +99,7 @@ class TrackerState:
         self._tracker = None
         self._layout: Layout | None = None
         self._network = False
+        self._method = settings.method  # the method the tracks were linked with
         self._rows: dict[int, list] = {}  # key -> [sensor id, stamp ns, v, pos, lane, length]
         self._committed: dict[int, int] = {}  # key -> committed track (-1 unassigned)
         self._final: dict[int, int] = {}  # final track -> its detections still held
@@ -148,11 +149,13 @@ class TrackerState:
             self.run = shard.first_id(self.run)
         self._layout = layout
         self._network = isinstance(layout, NetworkStations)  # tracks ordered by stamp
+        # the method the tracks were linked with: on a network, the network stream's own
+        self._method = NetworkStreamTracker.METHOD if self._network else self._settings.method
         self._reorder = ReorderBuffer(layout.n_sensors)
         self.newest = self.committed_until = -math.inf
         if answer is None:
             data = self._encode(
-                method=self._settings.method,
+                method=self._method,
                 tracks=[],
                 unassigned=[],
                 committed_until_ns=0,
@@ -329,7 +332,7 @@ class TrackerState:
             if committed == math.inf:
                 committed = self.newest + 1e-9
             data = self._encode(
-                method=self._settings.method,
+                method=self._method,
                 tracks=tracks,
                 unassigned=unassigned,
                 committed_until_ns=_to_ns(committed),

@@ -1,9 +1,11 @@
 """The open-road graph: SUMO sensor stations, stream association, scoring and a recorder.
 
     ros2 launch road_sensors stream.launch.py [duration:=120.0] [lag:=30.0] [source:=sim]
+    ros2 launch road_sensors stream.launch.py network:=interchange
 
 The graph of ``make demo-stream``: ``sumo_sensors`` in continuous mode on a SUMO scenario
-(``source:=sim``: ``sensor_sim``'s open road instead) -> ``association_node`` in stream mode
+(``source:=sim``: ``sensor_sim``'s open road instead; ``network:=...``: continuous traffic on
+a SUMO road network) -> ``association_node`` in stream mode
 (every detection linked at once, links committed ``lag`` seconds of stamp time later) ->
 ``scorer_node`` in stream mode (accuracy and revision rate per ``window`` of stamp time on
 /mlkm/score), and ``bag_recorder``. Each node reads its ``config/<node>.param.yaml`` and then the
@@ -29,6 +31,12 @@ ARGUMENTS = (
         'scenario',
         'ramps',
         'SUMO scenario: single_lane, highway, long_highway, congested or ramps [-]',
+    ),
+    (
+        'network',
+        '',
+        'SUMO: a road network instead of the scenario: interchange, arterial or grid (linked '
+        'with assignment, the network stream) [-]',
     ),
     ('duration', '120.0', 'simulated time the source publishes [s]'),
     ('stations', '10', 'sensor stations along the road [-]'),
@@ -58,6 +66,7 @@ def nodes(context):
         executable = 'sumo_sensors'
         source.update(
             scenario=arg['scenario'],
+            network=arg['network'],
             stations=int(arg['stations']),
             stations_at=arg['stations_at'],
         )

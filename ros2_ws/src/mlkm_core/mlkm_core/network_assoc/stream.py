@@ -75,6 +75,9 @@ MAX_DEFERRED = 30
 class NetworkStreamTracker(TrackBook):
     """Associates an endless stream of detections on ``net`` with a fixed commit lag."""
 
+    #: the network method its windows link with (``linking.solve``)
+    METHOD = 'assignment'
+
     def __init__(
         self, net: RoadNetwork, config: NetworkStreamConfig | None = None, executor: Any = None
     ) -> None:
