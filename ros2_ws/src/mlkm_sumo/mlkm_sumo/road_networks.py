@@ -149,7 +149,7 @@ def generate_network(
     seeded with ``draw.seed``. Raises SumoError."""
     measurement = measurement or MeasurementConfig()
     road = build_draw(draw, cache_dir)
-    measure_rng = np.random.default_rng([int(draw.seed), 0x4E7])
+    measure_rng = _measure_rng(draw)
     wall0 = _time.perf_counter()
     with _RouteRun(road, draw.seed, step_length) as run:
         run.add_demand(draw.flow, n_vehicles=draw.vehicles)
@@ -175,24 +175,30 @@ def generate_network(
     return _to_dataset(draw, road, measured, routes, stats)
 
 
+def _measure_rng(draw: NetworkDraw) -> np.random.Generator:
+    """The measurement model's generator of a draw's run."""
+    return np.random.default_rng([int(draw.seed), 0x4E7])
+
+
 def network_stream(
     draw: NetworkDraw,
     duration: float | None = None,
     measurement: MeasurementConfig | None = None,
     cache_dir: str | Path | None = None,
     step_length: float = STEP_LENGTH,
+    road: NetworkRoad | None = None,
 ) -> PassageStream:
     """Continuous traffic on the network of ``draw``: departures at its flow, on its routes
     with their shares, until ``duration`` [s] or forever (None), measured as passages come
     (``PassageStream``); a passage's station is the network's station index and its
     position is along that station's link. SUMO, the departures and the measurement are
-    seeded with ``draw.seed``. Raises SumoError."""
-    road = build_draw(draw, cache_dir)
-    positions = np.array([s['position_m'] for s in road.mapping['stations']], float)
-    rng = np.random.default_rng([int(draw.seed), 0x4E7])
+    seeded with ``draw.seed``. ``road``: the draw already built (``build_draw``). Raises
+    SumoError."""
+    road = road or build_draw(draw, cache_dir)
     return PassageStream.on_road(
-        road, positions, draw.seed, draw.flow, rng, duration, measurement, step_length
-    )
+        road, np.array(road.loop_pos), draw.seed, draw.flow, _measure_rng(draw), duration,
+        measurement, step_length,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)

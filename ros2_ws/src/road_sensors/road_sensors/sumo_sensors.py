@@ -109,9 +109,8 @@ class SumoSensorsNode(SensorSource):
         ``cfg.vehicles`` vehicles (``mlkm sumo --network``'s draw), published in the network
         form of the layout with its links' shapes."""
         self._draw = draw_network(cfg.network, cfg.seed, vehicles=cfg.vehicles)
-        built = build_draw(self._draw, cfg.cache_dir)
-        self._net = network_from_mapping(built.mapping, f'{cfg.network} seed {cfg.seed}')
-        self._mapping = built.mapping
+        self._built = build_draw(self._draw, cfg.cache_dir)
+        self._net = network_from_mapping(self._built.mapping, f'{cfg.network} seed {cfg.seed}')
         episodic = cfg.mode == 'episodes'
         self._open(
             network_stations(self._net), episodic, network_to_msg(self._net, self._now_ns())
@@ -157,7 +156,7 @@ class SumoSensorsNode(SensorSource):
         for k in range(cfg.episodes):
             draw = replace(self._draw, seed=self._draw.seed + k)
             ds = generate_network(draw, cfg.cache_dir, cfg.measurement, cfg.step_length)
-            if ds.mapping != self._mapping:
+            if ds.mapping != self._built.mapping:
                 raise SumoError(f'episode {k}: SUMO built another network for seed {draw.seed}')
             if self._interrupted() or not self._publish_episode(k, _NetworkEpisode(ds)):
                 return False
@@ -205,8 +204,9 @@ class SumoSensorsNode(SensorSource):
         cfg: SumoSensorsConfig = self._config
         if cfg.network:
             stream = network_stream(
-                self._draw, cfg.duration, cfg.measurement, cfg.cache_dir, cfg.step_length
-            )
+                self._draw, cfg.duration, cfg.measurement, step_length=cfg.step_length,
+                road=self._built,
+            )  # fmt: skip
         else:
             stream = PassageStream(cfg.scenario, duration=cfg.duration, **cfg.sumo_options())
         targets: dict[str, int] = {}  # SUMO id -> target id of this run

@@ -12,8 +12,8 @@ Both are estimated from the links of a pass over the data being associated, per 
   wait at a red light or at a yielding merge, which differ from vehicle to vehicle: the mean
   and the variance of the excess travel time (over the motion model's prediction) of the
   links that cross the connection, and no other, are added to the travel time's. Their
-  central ``KEPT`` share counts (a first pass's few wrong links are not waits). One Gaussian,
-  not a mixture of "through on green" and "held at red": its cost is convex in the travel
+  central ``signals.KEPT`` share counts (a first pass's few wrong links are not waits). One
+  Gaussian, not a mixture of "through on green" and "held at red": its cost is convex in the travel
   time, so among vehicles held in one queue the matching keeps their order (first in, first
   out), which a mixture, flat over the red phase, would leave to chance. A hop with links
   enough gets its own time lost, which also holds a queue reaching back over a station inside
@@ -33,10 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mlkm_core.network import RoadNetwork
-from mlkm_core.network_assoc.signals import Signals
+from mlkm_core.network_assoc.signals import Signals, central
 
-#: central share of a connection's excess travel times its mean and variance are taken from
-KEPT = 0.95
 #: fewest links across a connection to fit its time lost from
 MIN_LINKS = 8
 #: (mean [s], variance [s^2]) of the time lost at every connection before the fit: a wait
@@ -119,8 +117,6 @@ def fit_junctions(
 
 
 def _loss(excess: np.ndarray, sd: np.ndarray) -> tuple[float, float]:
-    """(mean, variance beyond the motion model's) of the central ``KEPT`` of ``excess``."""
-    e = np.sort(excess)
-    cut = int((1.0 - KEPT) / 2 * e.size)
-    mid = e[cut : e.size - cut]
+    """(mean, variance beyond the motion model's) of the central ``signals.KEPT`` of ``excess``."""
+    mid = central(excess)
     return float(mid.mean()), max(float(mid.var()) - float(np.median(sd**2)), 0.0)

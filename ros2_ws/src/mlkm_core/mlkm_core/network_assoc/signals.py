@@ -60,7 +60,8 @@ GREEN_SHARE = 0.95
 GREEN_GAP = 3.0
 #: fewest links that crossed a connection (alone) to learn its green from
 MIN_LINKS = 8
-#: central share of the time lost on which the model with and without the green are compared
+#: central share of the time lost that counts: for its mean and variance (``junctions``) and
+#: where the model with and without the green are compared
 KEPT = 0.95
 #: least log-likelihood gain [nats] per parameter of a green window (start, length) to keep it
 GAIN_PER_PARAMETER = 3.0
@@ -265,11 +266,16 @@ def green_window(phases: np.ndarray, cycle: float) -> tuple[float, float]:
     return float(ext[lo] % cycle), float(min(ext[hi] - ext[lo], cycle))
 
 
-def _central_nll(x: np.ndarray) -> float:
-    """Gaussian NLL [nats] (up to a constant) of the central ``KEPT`` of ``x``."""
+def central(x: np.ndarray) -> np.ndarray:
+    """The central ``KEPT`` of ``x``, sorted (a pass's few wrong links are not waits)."""
     x = np.sort(x)
     cut = int((1.0 - KEPT) / 2 * x.size)
-    mid = x[cut : x.size - cut]
+    return x[cut : x.size - cut]
+
+
+def _central_nll(x: np.ndarray) -> float:
+    """Gaussian NLL [nats] (up to a constant) of the central ``KEPT`` of ``x``."""
+    mid = central(x)
     return 0.5 * mid.size * math.log(max(float(mid.var()), 1e-6))
 
 

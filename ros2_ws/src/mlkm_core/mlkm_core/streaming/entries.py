@@ -39,7 +39,6 @@ class EndedTracks:
     """The stream's latest ended tracks, whole, and the entry and exit rates they show."""
 
     def __init__(self, layout: Layout, size: int = ENDED_SIZE) -> None:
-        self.positions = layout.positions
         self.layout = layout
         self.size = size
         self.first_stamp = math.inf  # [s] of the stream's first detection
@@ -47,6 +46,7 @@ class EndedTracks:
         self._alone: deque[np.ndarray] = deque()  # (3,) rows of detections committed alone
         self._rows = 0
         self._version = 0
+        # the rates of the tracks kept at a version, estimated under the gate of their call
         self._cached: tuple[int, tuple[np.ndarray | None, np.ndarray | None]] | None = None
 
     def begin(self, stamp: float) -> None:
@@ -56,7 +56,8 @@ class EndedTracks:
     def _whole(self, sensor: int, stamp: float, velocity: float) -> bool:
         """Whether a vehicle first seen so began after the stream: carried back to the first
         station at its speed, it passed there after the stream's first stamp."""
-        back = (self.positions[sensor] - self.positions[0]) / velocity
+        pos = self.layout.positions
+        back = (pos[sensor] - pos[0]) / velocity
         return stamp - back >= self.first_stamp
 
     def add_track(self, rows: list[tuple[int, float, float]]) -> None:
@@ -82,7 +83,7 @@ class EndedTracks:
 
     def rates(self, params: MotionParams) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(entry rate, exit rate) per station (``MotionParams.entry_rate``; None: none shown),
-        estimated on the kept tracks under ``params``' gate."""
+        estimated on the kept tracks under ``params``' gate when they last changed."""
         if self._cached is not None and self._cached[0] == self._version:
             return self._cached[1]
         out: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
