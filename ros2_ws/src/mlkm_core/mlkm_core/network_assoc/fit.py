@@ -1,9 +1,11 @@
 """The network model fitted to the data being associated: motion, turns, time lost at junctions.
 
-Pass 1 links with generic parameters (``MotionParams()``, equal turn shares, a generous time
-lost at every junction). From its links: the pairwise model's own maximum-likelihood fit of the
-motion (``pairwise_fit.fit_links``, on the links that cross no junction where there are
-enough of them, so that red lights do not pass for speed scatter) and, for each hop with as
+Pass 1 links with generic parameters (``MotionParams()``, equal turn shares) and, per
+junction, the time lost at the peak of every pair of detections across it where one stands
+out clearly (``pair_lags``), else a generous generic one. From its links: the pairwise
+model's own maximum-likelihood fit of the motion (``pairwise_fit.fit_links``, on the links
+that cross no junction where there are enough of them, so that red lights do not pass for
+speed scatter) and, for each hop with as
 many links as that fit needs, a motion fit of its own (an acceleration lane or a merge
 changes speeds far more than the road before it), the fixed-time signals where a junction
 shows one (``signals.fit_signals``: cycle, greens, queues), then the turn shares and the time
@@ -29,9 +31,10 @@ from mlkm_core.model.length import fit_links as fit_lengths
 from mlkm_core.model.motion import MotionParams, trapezoid_residual
 from mlkm_core.network import RoadNetwork
 from mlkm_core.network_assoc.hops import Hops
-from mlkm_core.network_assoc.junctions import JunctionModel, fit_junctions, generic_junctions
+from mlkm_core.network_assoc.junctions import JunctionModel, fit_junctions
 from mlkm_core.network_assoc.lanes import HopLanes, fit_lanes
 from mlkm_core.network_assoc.linking import Links, solve
+from mlkm_core.network_assoc.pair_lags import pair_junctions
 from mlkm_core.network_assoc.signals import fit_signals, link_waits
 from mlkm_core.types import Detections
 
@@ -96,7 +99,7 @@ def calibrate_and_link(
     net: RoadNetwork, hops: Hops, d: Detections
 ) -> tuple[np.ndarray, NetworkModel]:
     """Labels of ``d`` under the model fitted on it, and that model."""
-    model = NetworkModel(MotionParams(), generic_junctions(net), LengthParams())
+    model = NetworkModel(MotionParams(), pair_junctions(net, hops, d), LengthParams())
     labels, links = solve(hops, d, model.motion, model.junctions, model.cue(d))
     for _ in range(ROUNDS):
         model = fit_model(net, hops, d, links, MotionParams())

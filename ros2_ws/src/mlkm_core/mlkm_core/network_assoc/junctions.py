@@ -22,7 +22,8 @@ Both are estimated from the links of a pass over the data being associated, per 
 
 Before anything is fitted (the first pass), every connection has equal shares and a generous
 time lost (``GENERIC_LOSS``), so that no vehicle held at a red light is cut out of the links
-the fit learns from.
+the fit learns from; where the pairs of detections across a junction show its time lost
+without links and no waiters beside it, the first pass takes that one (``pair_lags``).
 """
 
 from __future__ import annotations
