@@ -22,6 +22,7 @@ def test_one_seed_per_family_end_to_end_through_the_cli(tmp_path):
     assert cli.main([*argv, '--cache-dir', str(tmp_path / 'cache')]) == 0
     data = json.loads((out / 'network.json').read_text())
     assert [c['family'] for c in data['cells']] == list(network.FAMILIES)
+    assert 'long' not in data  # the hour-long inputs run in full runs only
     for cell in data['cells']:
         assert cell['seeds'] == [1] and cell['draws'][0]['family'] == cell['family']
         assert cell['overrides'] == network.QUICK_OVERRIDES
@@ -127,3 +128,43 @@ def test_stone_soup_on_a_network_follows_two_vehicles_that_swap_at_a_diverge():
     labels = stonesoup_network_associate(net, d)
     assert labels[0] == labels[1] == labels[2] >= 0
     assert labels[3] == labels[4] == labels[5] >= 0 and labels[0] != labels[3]
+
+
+def test_the_long_inputs_section_has_one_row_per_seed_and_method():
+    from mlkm_experiments.bench.network_long import long_lines
+
+    def row(acc: float) -> dict:
+        return {'accuracy': acc}
+
+    long = {
+        'family': 'interchange',
+        'duration': 3600.0,
+        'methods': ['assignment', 'assignment_stream'],
+        'runs': [
+            {'seed': 1, 'detections': 12000, 'rows': {
+                'time_speed': {'assignment': row(0.8585), 'assignment_stream': row(0.8351)},
+                'lane_length': {'assignment': row(0.9546), 'assignment_stream': row(0.9146)},
+            }},
+        ],
+    }  # fmt: skip
+    lines = long_lines(long)
+    assert lines[0] == '### Long inputs: an hour of interchange traffic'
+    assert '| 1 | 12000 | `assignment` | 85.85 | 95.46 |' in lines
+    assert '| 1 | 12000 | `assignment_stream` | 83.51 | 91.46 |' in lines
+    assert long_lines({}) == []
+
+
+@pytest.mark.slow
+# five minutes of SUMO traffic and one batch run: seconds, more on a busy machine
+@pytest.mark.timeout(300)
+def test_continuous_traffic_on_an_interchange_comes_as_a_dataset_the_batch_links(tmp_path):
+    from mlkm_core.metrics import accuracy
+    from mlkm_core.network_assoc import associate_network
+    from mlkm_experiments.bench.network_long import hour_dataset
+
+    draw, net, d = hour_dataset('interchange', 1, 300.0, tmp_path)
+    assert draw.family == 'interchange' and len(d) > 500
+    assert d.stamp.max() < 300.0 and set(d.sensor_index.tolist()) <= set(range(net.n_stations))
+    assert d.target.min() >= 0  # no false alarms by default: every detection is a vehicle's
+    labels = associate_network(net, d, 'assignment')
+    assert accuracy(labels, d.target).accuracy > 0.85  # 88.48 % (seeded SUMO)

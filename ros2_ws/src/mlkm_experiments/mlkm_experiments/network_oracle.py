@@ -24,7 +24,7 @@ from mlkm_core.network_assoc.hops import Hops
 from mlkm_core.network_assoc.linking import Links, solve
 from mlkm_core.types import Detections
 
-from .bench.network import FAMILIES, _dataset, _variant
+from .bench.network import FAMILIES, _dataset, variant_of
 
 
 def true_links(hops: Hops, d: Detections) -> Links:
@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     for family in FAMILIES:
         for seed in range(1, args.seeds + 1):
             _, net, d = _dataset(family, seed, {}, args.cache_dir)
-            d = _variant(d, 'time_speed')
+            d = variant_of(d, 'time_speed')
             hops = network_hops(net, MAX_SKIP)
             model = fit_model(net, hops, d, true_links(hops, d), MotionParams())
             oracle, _ = solve(hops, d, model.motion, model.junctions)

@@ -13,7 +13,19 @@ from pathlib import Path
 from mlkm_core.associators import available_methods
 from mlkm_core.cli_args import renamed_option
 
-from . import cost, grid, network, peer, real, shards, soak, stream, sumo, sumo_families
+from . import (
+    cost,
+    grid,
+    network,
+    network_long,
+    peer,
+    real,
+    shards,
+    soak,
+    stream,
+    sumo,
+    sumo_families,
+)
 from .plots import plot_all, plot_stream
 from .report import write_readme
 from .targets import evaluate_targets
@@ -29,6 +41,14 @@ def _run_live(out_dir: Path, log) -> dict:
     from .live import run_live
 
     return run_live(out_dir, log)
+
+
+def _run_network(log, quick: bool, cache_dir) -> dict:
+    """The network families and, in a full run, the hour-long inputs (``network_long``)."""
+    out = network.run_network(log, quick, cache_dir)
+    if not quick:
+        out['long'] = network_long.run_long(log, cache_dir)
+    return out
 
 
 def _now() -> str:
@@ -132,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             previous=load('sumo') if args.families_only else None,
             peer_rows=sumo.peer_rows(load('sumo')) if args.keep_peer else None,
         ),
-        'network': lambda: network.run_network(log, quick, args.cache_dir),
+        'network': lambda: _run_network(log, quick, args.cache_dir),
         'live': lambda: _run_live(out_dir, log),
         'soak': lambda: soak.run_soak(
             log, episodes=soak.QUICK_EPISODES if quick else soak.EPISODES

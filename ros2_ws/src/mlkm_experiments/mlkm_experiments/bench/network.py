@@ -51,7 +51,7 @@ STREAM_SPEEDUP = 20.0
 PUBLISHED_GMLKM = 0.922
 
 
-def _variant(d: Detections, name: str) -> Detections:
+def variant_of(d: Detections, name: str) -> Detections:
     if name == 'lane_length':
         return d
     return Detections(d.sensor_index, d.stamp, d.velocity, d.target)
@@ -66,14 +66,14 @@ def _dataset(family: str, seed: int, overrides: dict, cache_dir: Path | None):
     return draw, network_from_mapping(ds.mapping, f'{family} seed {seed}'), ds.detections()
 
 
-def _row(net, d: Detections, method: str) -> dict:
+def method_row(net, d: Detections, method: str) -> dict:
     from mlkm_core.network_assoc import associate_network
 
     from .peer_network import stonesoup_network_associate
 
     t0 = time.perf_counter()
     if method == PEER:
-        labels = stonesoup_network_associate(net, _variant(d, 'time_speed'))
+        labels = stonesoup_network_associate(net, variant_of(d, 'time_speed'))
     elif method == STREAM:
         labels = _streamed(net, d)
     else:
@@ -127,7 +127,7 @@ def run_network(log: Log, quick: bool, cache_dir: Path | None = None) -> dict:
         for variant in VARIANTS:
             cell['variants'][variant] = {}
             for m in methods:
-                rows = [_row(n, _variant(d, variant), m) for _, n, d in sets]
+                rows = [method_row(n, variant_of(d, variant), m) for _, n, d in sets]
                 s = summarise(rows)
                 cell['variants'][variant][m] = {'summary': s, 'runs': rows}
                 log(
@@ -135,7 +135,7 @@ def run_network(log: Log, quick: bool, cache_dir: Path | None = None) -> dict:
                     f' n={s["n"]} ({sum(r["seconds"] for r in rows):.1f} s)'
                 )
         for m in peer:  # time and speed only: one run serves both variants
-            rows = [_row(n, d, m) for _, n, d in sets]
+            rows = [method_row(n, d, m) for _, n, d in sets]
             s = summarise(rows)
             for variant in VARIANTS:
                 cell['variants'][variant][m] = {'summary': s, 'runs': rows}
@@ -152,7 +152,7 @@ def run_network(log: Log, quick: bool, cache_dir: Path | None = None) -> dict:
     if not quick:
         family, seed, overrides = SPEED
         _, net, d = _dataset(family, seed, overrides, cache_dir)
-        row = _row(net, d, BEST)
+        row = method_row(net, d, BEST)
         out['speed'] = {
             'family': family,
             'seed': seed,

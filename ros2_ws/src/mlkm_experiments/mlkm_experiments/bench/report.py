@@ -8,6 +8,7 @@ from pathlib import Path
 from .common import BEST, MODES, pct
 from .grid import grid_cell
 from .network import report_lines as network_report
+from .network_long import long_lines
 from .plots import plot_sumo_curves
 from .real import report_lines as real_report
 from .shards import report_lines as shards_report
@@ -183,6 +184,7 @@ def write_readme(out_dir: Path, parts: dict[str, dict], targets: list[dict], met
     sumo = parts.get('sumo', {})
     L += sumo_families_report(sumo, plot_sumo_curves(out_dir, sumo))
     L += network_report(parts.get('network', {}))
+    L += long_lines(parts.get('network', {}).get('long'))
     L += soak_report(parts.get('soak', {}))
     L += stream_report(parts.get('stream', {}))
     L += shards_report(parts.get('shards', {}))
