@@ -165,6 +165,7 @@ def test_continuous_traffic_on_an_interchange_comes_as_a_dataset_the_batch_links
     draw, net, d = hour_dataset('interchange', 1, 300.0, tmp_path)
     assert draw.family == 'interchange' and len(d) > 500
     assert d.stamp.max() < 300.0 and set(d.sensor_index.tolist()) <= set(range(net.n_stations))
-    assert d.target.min() >= 0  # no false alarms by default: every detection is a vehicle's
+    # no false alarms by default; a lane change's double report targets no vehicle
+    assert d.target.min() >= -1 and (d.target >= 0).mean() > 0.99
     labels = associate_network(net, d, 'assignment')
     assert accuracy(labels, d.target).accuracy > 0.85  # 88.48 % (seeded SUMO)

@@ -18,25 +18,29 @@ import numpy as np
 from mlkm_core.types import FALSE_ALARM, Detections
 
 from .common import Log, pct
-from .network import VARIANT_LABELS, VARIANTS, method_row, variant_of
+from .network import BEST, STREAM, VARIANT_LABELS, VARIANTS, method_row, variant_of
 
 FAMILY = 'interchange'
 SEEDS = (1, 2, 3)
 DURATION = 3600.0  # [s]
-METHODS = ('assignment', 'assignment_stream')
+METHODS = (BEST, STREAM)
 
 
 def hour_dataset(family: str, seed: int, duration: float, cache_dir: Path | None):
     """(draw, network, detections) of ``duration`` [s] of continuous traffic on the draw
-    ``(family, seed)``; a detection's target is its vehicle (``FALSE_ALARM`` for clutter)."""
+    ``(family, seed)``; a detection's target is its vehicle (``FALSE_ALARM`` for a double
+    report or clutter)."""
     from mlkm_core.network import network_from_mapping
+    from mlkm_sumo.measurement import PASSAGE
     from mlkm_sumo.road_networks import draw_network, network_stream
 
     draw = draw_network(family, seed)
     stream = network_stream(draw, duration=duration, cache_dir=cache_dir)
     passages = list(stream)
     ids: dict[str, int] = {}
-    target = [ids.setdefault(p.vehicle, len(ids)) if p.vehicle else FALSE_ALARM for p in passages]
+    # as in the episodes' datasets: a double report or a false alarm targets no vehicle
+    target = [ids.setdefault(p.vehicle, len(ids)) if p.kind == PASSAGE else FALSE_ALARM
+              for p in passages]  # fmt: skip
     d = Detections(
         np.array([p.station for p in passages], np.int64),
         np.array([p.time for p in passages]),
