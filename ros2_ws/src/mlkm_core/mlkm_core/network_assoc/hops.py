@@ -3,7 +3,10 @@
 A *hop* goes from a station to one a vehicle can reach next (``RoadNetwork.successors``), or,
 over up to ``max_skip`` stations it passed unseen (a missed detection), to one further on. It
 carries the distance [m], the stations skipped, the junctions crossed (each a connection
-``(from link, to link)``) and whether an exit or an entry lies on the way. ``Hops`` also holds,
+``(from link, to link)``), whether an exit or an entry lies on the way, and whether its
+vehicles keep their order (``in_order``: it runs along one link of a single lane, with no
+junction, entry, exit or unseen station on the way, so none can overtake another or join
+between two others). ``Hops`` also holds,
 per station, how many stations a vehicle passes at least between an entry and it
 (``before``) and between it and an exit (``after``): a track that starts or ends where no
 vehicle can enter or leave has missed those stations.
@@ -32,6 +35,7 @@ class Hops:
     turns: tuple[tuple[tuple[int, int], ...], ...]  # the connections crossed, per hop
     may_leave: np.ndarray  # an exit lies on the way, bool (h,)
     may_join: np.ndarray  # an entry lies on the way, bool (h,)
+    in_order: np.ndarray  # its vehicles reach dst in the order they passed src, bool (h,)
     before: np.ndarray  # per station: fewest stations from an entry to it, int64 (n,)
     after: np.ndarray  # per station: fewest stations from it to an exit, int64 (n,)
 
@@ -70,6 +74,14 @@ def network_hops(net: RoadNetwork, max_skip: int) -> Hops:
     keys = sorted(best)
     src = np.array([k[0] for k in keys], np.int64)
     dst = np.array([k[1] for k in keys], np.int64)
+    one_lane = {k.link_id: k.lanes == 1 for k in net.links}
+    link = net.station_links
+
+    def in_order(key: tuple[int, int, int]) -> bool:
+        _, turns, leave, join = best[key]
+        same = link[key[0]] == link[key[1]]
+        return same and one_lane[int(link[key[0]])] and not (turns or key[2] or leave or join)
+
     return Hops(
         src=src,
         dst=dst,
@@ -78,6 +90,7 @@ def network_hops(net: RoadNetwork, max_skip: int) -> Hops:
         turns=tuple(best[k][1] for k in keys),
         may_leave=np.array([best[k][2] for k in keys], bool),
         may_join=np.array([best[k][3] for k in keys], bool),
+        in_order=np.array([in_order(k) for k in keys], bool),
         before=_before(net, steps),
         after=_after(net, steps),
     )

@@ -26,6 +26,9 @@ A track's start costs the new-track cost plus the misses of the stations it must
 unseen since an entry; its end the misses of the stations it would pass before an exit
 (``hops.Hops.before`` / ``after``). A link is made when it costs less than the start and the
 end it saves; a track of one detection is left unassigned (a false alarm), as on one road.
+On a hop along one lane, where no vehicle can overtake another, two links the matching
+crossed are exchanged back into the order of passage unless the link model objects
+(``order``).
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from mlkm_core.model.motion import END_MISSES, FLOOR_T, MotionParams, PairwiseMo
 from mlkm_core.network_assoc.hops import Hops
 from mlkm_core.network_assoc.junctions import JunctionModel
 from mlkm_core.network_assoc.lanes import HopLanes
+from mlkm_core.network_assoc.order import keep_order, pair_costs
 from mlkm_core.network_assoc.signals import Signals
 from mlkm_core.types import Detections
 
@@ -205,6 +209,17 @@ def solve(
     n = len(d)
     i, j, cost, hop = candidates(hops, d, p, junctions, cue, lanes, per_hop)
     rows, cols = match_sparse(i, j, link_weights(hops, p, d, i, j, cost), n, n)
+    # the hop of each link made (the cheapest candidate between the two detections)
+    key = i.astype(np.int64) * n + j
+    order = np.lexsort((cost, key))
+    keys = key[order]
+    first = np.concatenate([[True], keys[1:] != keys[:-1]]) if keys.size else keys.astype(bool)
+    best_key, best_hop = keys[first], hop[order][first]
+    made = best_hop[np.searchsorted(best_key, rows.astype(np.int64) * n + cols)]
+    made = made.astype(np.int64)
+    if hops.in_order.any():
+        cost_of = pair_costs(n, best_key, cost[order][first])
+        cols = keep_order(hops.in_order, d, rows, cols, made, cost_of)
     nxt = np.full(n, -1, np.int64)
     nxt[rows] = cols
     has_prev = np.zeros(n, bool)
@@ -217,11 +232,4 @@ def solve(
             labels[k] = track
             k = int(nxt[k])
         track += 1
-    # the hop of each link made (the cheapest candidate between the two detections)
-    key = i.astype(np.int64) * n + j
-    order = np.lexsort((cost, key))
-    keys = key[order]
-    first = np.concatenate([[True], keys[1:] != keys[:-1]]) if keys.size else keys.astype(bool)
-    best_key, best_hop = keys[first], hop[order][first]
-    made = best_hop[np.searchsorted(best_key, rows.astype(np.int64) * n + cols)]
-    return relabel(labels), Links(rows, cols, made.astype(np.int64))
+    return relabel(labels), Links(rows, cols, made)
