@@ -51,9 +51,10 @@ def keep_order(
     b)``: the link model's cost of each pair [nats]. ``a`` and ``hop`` stay as they are."""
     b = b.copy()
     limit = -np.log(SWAP_PROB)
-    for h in np.unique(hop[in_order[hop]]).tolist():
-        k = np.flatnonzero(hop == h)
-        k = k[np.argsort(d.stamp[a[k]], kind='stable')]
+    # the links of those hops, by hop and then by the stamp at their first station
+    kept = np.flatnonzero(in_order[hop])
+    kept = kept[np.lexsort((d.stamp[a[kept]], hop[kept]))]
+    for k in np.split(kept, np.flatnonzero(np.diff(hop[kept])) + 1):
         if k.size < 2:
             continue
         stale = 0
