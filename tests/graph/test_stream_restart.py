@@ -4,8 +4,9 @@ The node runs in stream mode; two vehicles pass the first two stations, so their
 published CONFIRMED; the node is killed (SIGKILL to its process group: no goodbye) and
 started again; a third vehicle passes. The restarted node publishes a later run whose track
 ids never meet the earlier ones, and a consumer that keeps the latest state per track id
-and applies the track contract's rule (docs/interfaces.md) (a track not FINAL in an earlier run has ended once a message
-of a later run arrives) sees no track left open once the restarted node flushed its road.
+and applies the track contract's rule (docs/interfaces.md: a track not FINAL in an earlier
+run has ended once a message of a later run arrives) sees no track left open once the
+restarted node flushed its road.
 
 Every process is started through the ``ros_process`` fixture, which stops it at teardown
 even when the test fails.
@@ -90,7 +91,8 @@ class Source:
 
 def consumer_view(messages: list[TrackArray]) -> dict[int, tuple[int, int]]:
     """track id -> (run, status): the latest state of each track, where a track that is not
-    FINAL in an earlier run than the newest message's has ended (docs/interfaces.md, stream mode)."""
+    FINAL in an earlier run than the newest message's has ended (the track contract in
+    docs/interfaces.md, stream mode)."""
     view: dict[int, tuple[int, int]] = {}
     newest = 0
     for msg in messages:
